@@ -1,0 +1,15 @@
+//! adsb-tracker: a Mode S / ADS-B daemon that tracks every aircraft it hears.
+//!
+//! The data path runs one way (see `DESIGN.md`):
+//! [`feed`] (bytes -> [`feed::RawFrame`]) -> [`decode`] (frames -> [`decode::Decoded`])
+//! -> [`daemon`] (a task per aircraft: CPR -> [`track::Measurement`] -> [`track::Tracker`])
+//! -> [`api`] (HTTP, reading published snapshots only).
+//!
+//! [`track`] is pure math: no tokio, no I/O, no JSON.
+
+pub mod api;
+pub mod config;
+pub mod daemon;
+pub mod decode;
+pub mod feed;
+pub mod track;

@@ -1,0 +1,153 @@
+//! Tracking math: pure, synchronous, no tokio, no I/O, no JSON.
+//!
+//! Shape (after Stone Soup and adskalman): motion models give F(dt) and Q(dt) over nalgebra
+//! fixed-size matrices ([`kalman`]); a [`Tracker`] owns its initiation, prediction and update
+//! for one aircraft and is what the daemon drives. Everything is in metres and seconds in a
+//! local east-north-up plane ([`geo`]); dt is always an argument (ADS-B reports are irregular).
+
+pub mod cv;
+pub mod geo;
+pub mod kalman;
+
+use nalgebra::{Matrix3, Vector3};
+
+/// The five flight modes of paper 002 (ALGORITHMS.md §002).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum FlightMode {
+    /// Straight, constant velocity.
+    Cv,
+    /// Constant along-track acceleration.
+    Ca,
+    /// Coordinated turn.
+    Ct,
+    /// Climb or descent at constant ground velocity.
+    Ch,
+    /// Climb or descent with horizontal acceleration.
+    Chca,
+}
+
+impl FlightMode {
+    /// All modes, in the order of [`Estimate::mode_probabilities`].
+    pub const ALL: [FlightMode; 5] = [Self::Cv, Self::Ca, Self::Ct, Self::Ch, Self::Chca];
+
+    /// The label used in JSON and the truth CSV.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Cv => "CV",
+            Self::Ca => "CA",
+            Self::Ct => "CT",
+            Self::Ch => "CH",
+            Self::Chca => "CHCA",
+        }
+    }
+}
+
+impl std::str::FromStr for FlightMode {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        Self::ALL
+            .into_iter()
+            .find(|m| m.as_str().eq_ignore_ascii_case(s))
+            .ok_or_else(|| format!("unknown flight mode {s:?} (expected CV, CA, CT, CH or CHCA)"))
+    }
+}
+
+/// A measured vector in the local ENU plane with its covariance.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Observed {
+    /// Value: position in metres or velocity in m/s, east-north-up.
+    pub value: Vector3<f64>,
+    /// Its covariance (m^2 or m^2/s^2). A component that was not measured carries a huge
+    /// variance ([`UNMEASURED_VARIANCE`]) rather than a NaN.
+    pub cov: Matrix3<f64>,
+}
+
+/// Variance given to a component a report did not carry (e.g. vertical rate missing):
+/// (1 km)^2 or (1 km/s)^2, so the gain on it is negligible without special-casing H.
+pub const UNMEASURED_VARIANCE: f64 = 1.0e6;
+
+/// What one ADS-B report tells the tracker, already in the local ENU plane.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Measurement {
+    /// Feed time of the report, seconds.
+    pub t_s: f64,
+    /// Position (from an airborne position message after CPR decoding).
+    pub position: Option<Observed>,
+    /// Velocity (from a velocity message: ground velocity and vertical rate).
+    pub velocity: Option<Observed>,
+}
+
+/// A tracker's estimate at a time.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Estimate {
+    /// Time of the estimate, seconds of feed time.
+    pub t_s: f64,
+    /// Position, metres ENU.
+    pub pos_m: Vector3<f64>,
+    /// Velocity, m/s ENU.
+    pub vel_mps: Vector3<f64>,
+    /// Position covariance, m^2.
+    pub pos_cov_m2: Matrix3<f64>,
+    /// Velocity covariance, (m/s)^2.
+    pub vel_cov_m2ps2: Matrix3<f64>,
+    /// Current flight-mode label.
+    pub mode: FlightMode,
+    /// Probability of each mode, in the order of [`FlightMode::ALL`].
+    pub mode_probabilities: [f64; 5],
+    /// Which filter produced this estimate (e.g. "kalman-cv").
+    pub filter: &'static str,
+    /// True while a divergence criterion holds (paper 000).
+    pub diverging: bool,
+    /// Divergence events counted over the track's life.
+    pub divergence_events: u64,
+}
+
+impl Estimate {
+    /// 1-sigma horizontal position uncertainty: sqrt of the trace of the EN block, metres.
+    pub fn pos_sigma_m(&self) -> f64 {
+        (self.pos_cov_m2[(0, 0)] + self.pos_cov_m2[(1, 1)])
+            .max(0.0)
+            .sqrt()
+    }
+
+    /// 1-sigma horizontal velocity uncertainty, m/s.
+    pub fn vel_sigma_mps(&self) -> f64 {
+        (self.vel_cov_m2ps2[(0, 0)] + self.vel_cov_m2ps2[(1, 1)])
+            .max(0.0)
+            .sqrt()
+    }
+}
+
+/// Why a tracker step failed. The tracker stays usable: the daemon counts the error and
+/// (for `NotPositiveDefinite`) re-initialises from the next position.
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum TrackError {
+    /// The innovation covariance S could not be Cholesky-factored.
+    #[error("innovation covariance is not positive definite")]
+    NotPositiveDefinite,
+    /// A measurement older than the track (out of order): ignored.
+    #[error("measurement at {t_s} s is older than the track at {track_t_s} s")]
+    OutOfOrder { t_s: f64, track_t_s: f64 },
+    /// A non-finite number reached the filter.
+    #[error("non-finite value in {0}")]
+    NonFinite(&'static str),
+}
+
+/// One aircraft's tracker: initiation, prediction and update over irregular reports.
+///
+/// Object-safe so the daemon can hold `Box<dyn Tracker>` chosen by `tracker.algorithm`.
+pub trait Tracker: Send {
+    /// Short name of the algorithm (the `filter` field when it has one filter).
+    fn name(&self) -> &'static str;
+
+    /// Takes one report. The first report with a position initiates the track; reports before
+    /// it are ignored (Ok). A report older than the track is refused with `OutOfOrder`.
+    fn update(&mut self, m: &Measurement) -> Result<(), TrackError>;
+
+    /// The current (filtered) estimate, `None` before initiation.
+    fn estimate(&self) -> Option<Estimate>;
+
+    /// The estimate extrapolated by the current model to `t_s` (>= the track's time), with the
+    /// process noise added to its covariance; `None` before initiation.
+    fn predict(&self, t_s: f64) -> Option<Estimate>;
+}

@@ -11,6 +11,7 @@ pub mod cpr;
 pub mod crc;
 pub mod inspect;
 
+#[allow(unused_imports)]
 use crate::feed::RawFrame;
 use serde::Serialize;
 use std::fmt;

@@ -1,1 +1,258 @@
-//! The daemon (TODO).
+//! The daemon: wires feeds, the router, aircraft tasks, the registry and the HTTP API.
+//!
+//! `main.rs` parses the command line, binds the listener and installs the signal handlers;
+//! [`run`] does everything else and is what the tests call. One [`CancellationToken`] is the
+//! shutdown: every task selects on it, and `run` waits for all of them (dropped senders and
+//! `JoinSet`s, never a polled flag).
+
+pub mod aircraft;
+pub mod registry;
+pub mod router;
+pub mod source;
+pub mod stats;
+
+use crate::config::{Config, TrackerConfig};
+use crate::decode::cpr::CprConfig;
+use crate::decode::DecoderConfig;
+use crate::feed::tcp::{FeedStatus, FrameBatch, TcpFeed};
+use crate::track::cv::{CvKalman, CvParams};
+use crate::track::Tracker;
+use aircraft::{AircraftConfig, TaskContext};
+use registry::Registry;
+use router::RouterConfig;
+use source::{Replay, ReplayProgress};
+use stats::Stats;
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::time::Duration;
+use tokio::io::AsyncWriteExt;
+use tokio::net::TcpListener;
+use tokio::sync::mpsc;
+use tokio_util::sync::CancellationToken;
+
+/// Capacity of the feed -> router channel, in batches.
+const FEED_CHANNEL_BATCHES: usize = 64;
+
+/// Where the frames come from.
+#[derive(Clone, Debug)]
+pub enum Source {
+    /// Live TCP feeds (reconnecting forever).
+    Feeds(Vec<crate::config::FeedConfig>),
+    /// A recording.
+    Replay(Replay),
+}
+
+/// What to run besides the pipeline.
+pub struct RunOptions {
+    pub source: Source,
+    /// Serve the HTTP API on this listener.
+    pub listener: Option<TcpListener>,
+    /// Write every track update as a JSON line here.
+    pub tracks_out: Option<PathBuf>,
+    /// Return once a (non-looping) replay is fully processed, instead of serving until
+    /// shutdown.
+    pub exit_at_end: bool,
+}
+
+/// Why the daemon stopped with an error.
+#[derive(Debug, thiserror::Error)]
+pub enum DaemonError {
+    #[error("replay: {0}")]
+    Replay(#[from] crate::feed::replay::FeedError),
+    #[error("{0}: {1}")]
+    Io(String, std::io::Error),
+    #[error("a daemon task failed: {0}")]
+    Join(#[from] tokio::task::JoinError),
+}
+
+/// What a finished run saw.
+#[derive(Debug)]
+pub struct RunSummary {
+    pub stats: stats::StatsSnapshot,
+    /// Replay parse counters, when the source was a replay that finished.
+    pub replay: Option<crate::feed::ParseStats>,
+}
+
+/// Shared state of a running daemon, also the API's state.
+#[derive(Clone)]
+pub struct Shared {
+    pub registry: Arc<Registry>,
+    pub stats: Arc<Stats>,
+    pub config: Arc<Config>,
+}
+
+/// Builds the tracker `cfg.algorithm` names (validated at config load).
+pub fn build_tracker(cfg: &TrackerConfig) -> Box<dyn Tracker> {
+    Box::new(CvKalman::new(CvParams {
+        q_horizontal: cfg.cv_q_horizontal,
+        q_vertical: cfg.cv_q_vertical,
+        max_gap_s: cfg.max_gap_s,
+        ..CvParams::default()
+    }))
+}
+
+/// Runs the daemon until `shutdown` (or, with `exit_at_end`, the end of a replay).
+pub async fn run(
+    config: Config,
+    opts: RunOptions,
+    shutdown: CancellationToken,
+) -> Result<RunSummary, DaemonError> {
+    let shared = Shared {
+        registry: Arc::new(Registry::default()),
+        stats: Arc::new(Stats::new()),
+        config: Arc::new(config.clone()),
+    };
+    // The pipeline has its own token, a child of the caller's: the end of a replay stops the
+    // pipeline without stopping the caller's other work, and shutdown stops both.
+    let pipeline_stop = shutdown.child_token();
+
+    // Track update lines (--tracks-out): a writer task, lossless (tasks wait for it).
+    let (updates_tx, writer) = match &opts.tracks_out {
+        Some(path) => {
+            let file = tokio::fs::File::create(path)
+                .await
+                .map_err(|e| DaemonError::Io(path.display().to_string(), e))?;
+            let (tx, mut rx) = mpsc::channel::<Vec<u8>>(1024);
+            let path = path.clone();
+            let writer = tokio::spawn(async move {
+                let mut out = tokio::io::BufWriter::with_capacity(1 << 20, file);
+                while let Some(lines) = rx.recv().await {
+                    out.write_all(&lines)
+                        .await
+                        .map_err(|e| DaemonError::Io(path.display().to_string(), e))?;
+                }
+                out.flush()
+                    .await
+                    .map_err(|e| DaemonError::Io(path.display().to_string(), e))
+            });
+            (Some(tx), Some(writer))
+        }
+        None => (None, None),
+    };
+
+    let ctx = Arc::new(TaskContext {
+        registry: shared.registry.clone(),
+        stats: shared.stats.clone(),
+        updates: updates_tx,
+        idle: Duration::from_secs_f64(config.tracker.retire_after_s),
+        shutdown: pipeline_stop.clone(),
+    });
+
+    let (batch_tx, batch_rx) = mpsc::channel::<FrameBatch>(FEED_CHANNEL_BATCHES);
+    let is_replay = matches!(opts.source, Source::Replay(_));
+    let router_cfg = RouterConfig {
+        decoder: DecoderConfig {
+            fix_single_bit: config.decode.fix_single_bit,
+            recent_address_s: config.decode.recent_address_s,
+        },
+        aircraft: AircraftConfig {
+            cpr: CprConfig {
+                pair_window_s: config.cpr.pair_window_s,
+                max_speed_mps: config.cpr.max_speed_mps,
+                max_surface_speed_mps: config.cpr.max_surface_speed_mps,
+                receiver: config.receiver.map(|r| (r.lat_deg, r.lon_deg)),
+                ..CprConfig::default()
+            },
+            tracker: build_tracker,
+            tracker_config: config.tracker.clone(),
+        },
+        retire_after_s: config.tracker.retire_after_s,
+        channel_capacity: config.tracker.channel_capacity,
+        lossless: is_replay,
+    };
+    let router = tokio::spawn(router::run_router(batch_rx, router_cfg, ctx.clone()));
+    drop(ctx);
+
+    // The feeds.
+    let mut feed_tasks = tokio::task::JoinSet::new();
+    let mut replay_task = None;
+    match &opts.source {
+        Source::Feeds(feeds) => {
+            for f in feeds {
+                let status = Arc::new(FeedStatus::new(&f.name));
+                shared.stats.add_feed(status.clone());
+                feed_tasks.spawn(crate::feed::tcp::run_client(
+                    TcpFeed {
+                        name: f.name.clone(),
+                        addr: f.addr.clone(),
+                        format: f.format,
+                        nominal_rate_hz: config.decode.nominal_rate_hz,
+                    },
+                    batch_tx.clone(),
+                    status,
+                    pipeline_stop.clone(),
+                ));
+            }
+        }
+        Source::Replay(replay) => {
+            let replay = replay.clone();
+            let tx = batch_tx.clone();
+            let stop = pipeline_stop.clone();
+            let progress = Arc::new(ReplayProgress::default());
+            replay_task = Some(tokio::task::spawn_blocking(move || {
+                source::run_replay(&replay, &tx, &progress, &stop)
+            }));
+        }
+    }
+    drop(batch_tx);
+
+    // The HTTP API.
+    let server = opts.listener.map(|listener| {
+        let app = crate::api::app(shared.clone());
+        let stop = shutdown.clone();
+        tokio::spawn(async move {
+            axum::serve(listener, app)
+                .with_graceful_shutdown(async move { stop.cancelled().await })
+                .await
+        })
+    });
+
+    let mut replay_stats = None;
+    if let Some(task) = replay_task {
+        tokio::select! {
+            r = task => replay_stats = Some(r??),
+            _ = shutdown.cancelled() => {}
+        }
+        router_done(router, &pipeline_stop, false).await?;
+        shared
+            .stats
+            .replay_finished
+            .store(replay_stats.is_some(), std::sync::atomic::Ordering::Release);
+        if !opts.exit_at_end {
+            // Keep serving the last state until shutdown.
+            shutdown.cancelled().await;
+        }
+    } else {
+        shutdown.cancelled().await;
+        pipeline_stop.cancel();
+        while feed_tasks.join_next().await.is_some() {}
+        router_done(router, &pipeline_stop, true).await?;
+    }
+    pipeline_stop.cancel();
+    if let Some(w) = writer {
+        w.await??;
+    }
+    if let Some(server) = server {
+        if let Err(e) = server.await? {
+            tracing::warn!(error = %e, "HTTP server ended with an error");
+        }
+    }
+    Ok(RunSummary {
+        stats: shared.stats.snapshot(),
+        replay: replay_stats,
+    })
+}
+
+/// Waits for the router (and so every aircraft task) to finish. After a replay the channel is
+/// closed and the router drains; on shutdown it is cancelled.
+async fn router_done(
+    router: tokio::task::JoinHandle<()>,
+    stop: &CancellationToken,
+    cancel: bool,
+) -> Result<(), DaemonError> {
+    if cancel {
+        stop.cancel();
+    }
+    router.await?;
+    Ok(())
+}

@@ -1,0 +1,177 @@
+//! Replay source: a recording read on a blocking thread, paced by its own feed time.
+//!
+//! Pacing keeps the feed clock: batch k is sent when wall time since start reaches
+//! (t_k - t_0) / speed. A looped recording continues in time: each pass is shifted so that it
+//! starts `loop_gap_s` after the previous one ended (longer than the retirement delay, so every
+//! aircraft is retired and started afresh rather than seen to jump back).
+
+use crate::feed::replay::FileReader;
+use crate::feed::tcp::FrameBatch;
+use crate::feed::{Format, RawFrame};
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+use tokio::sync::mpsc;
+use tokio_util::sync::CancellationToken;
+
+/// Where a replay's bytes come from.
+#[derive(Clone, Debug)]
+pub enum ReplayData {
+    File(PathBuf),
+    /// A recording compiled into the binary (the `serve` default).
+    Embedded {
+        name: &'static str,
+        bytes: &'static [u8],
+    },
+}
+
+/// The embedded default recording: AFR34ZG, Paris CDG to Toulouse, gate to gate
+/// (fixtures/afr34zg-cdg-tls.jsonl, MIT, xoolive/traffic; see fixtures/README.md).
+pub const EMBEDDED_DEFAULT: ReplayData = ReplayData::Embedded {
+    name: "afr34zg-cdg-tls.jsonl",
+    bytes: include_bytes!("../../fixtures/afr34zg-cdg-tls.jsonl"),
+};
+
+/// A replay to run.
+#[derive(Clone, Debug)]
+pub struct Replay {
+    pub data: ReplayData,
+    /// `None`: detect.
+    pub format: Option<Format>,
+    /// Feed seconds per wall second; 0 = as fast as possible.
+    pub speed: f64,
+    pub loop_: bool,
+    pub nominal_rate_hz: f64,
+    /// Feed-time gap inserted between loops, s.
+    pub loop_gap_s: f64,
+    /// Print a progress line on stderr.
+    pub progress: bool,
+}
+
+/// Progress of a replay, for the stats and the progress line.
+#[derive(Default, Debug)]
+pub struct ReplayProgress {
+    pub frames: AtomicU64,
+    pub passes: AtomicU64,
+}
+
+/// Wall-clock slice of paced sending: frames within one slice go in one batch.
+const PACING_SLICE: Duration = Duration::from_millis(50);
+
+/// Runs the replay to its end (or forever when looping) on the calling (blocking) thread.
+pub fn run_replay(
+    replay: &Replay,
+    tx: &mpsc::Sender<FrameBatch>,
+    progress: &ReplayProgress,
+    shutdown: &CancellationToken,
+) -> Result<crate::feed::ParseStats, crate::feed::replay::FeedError> {
+    let mut offset_s = 0.0;
+    let start_wall = Instant::now();
+    let mut start_feed: Option<f64> = None;
+    let mut last_stats;
+    let mut frames: Vec<RawFrame> = Vec::with_capacity(8192);
+    let mut last_print = Instant::now();
+    let feed_name: Arc<str> = Arc::from(match &replay.data {
+        ReplayData::File(p) => p.display().to_string(),
+        ReplayData::Embedded { name, .. } => name.to_string(),
+    });
+    loop {
+        let mut reader = match &replay.data {
+            ReplayData::File(p) => FileReader::open(p, replay.format, replay.nominal_rate_hz)?,
+            ReplayData::Embedded { bytes, .. } => {
+                FileReader::from_bytes(bytes, replay.format, replay.nominal_rate_hz)?
+            }
+        };
+        let mut first_in_pass: Option<f64> = None;
+        let mut last_in_pass = 0.0;
+        loop {
+            if shutdown.is_cancelled() {
+                return Ok(reader.stats().clone());
+            }
+            frames.clear();
+            let more = reader.next_batch(&mut frames)?;
+            for f in frames.iter_mut() {
+                first_in_pass.get_or_insert(f.time_s);
+                last_in_pass = f.time_s;
+                f.time_s += offset_s;
+            }
+            progress
+                .frames
+                .fetch_add(frames.len() as u64, Ordering::Relaxed);
+            if replay.speed > 0.0 {
+                send_paced(&frames, replay.speed, start_wall, &mut start_feed, tx, &feed_name, shutdown);
+            } else if !frames.is_empty() {
+                let batch = FrameBatch {
+                    feed: feed_name.clone(),
+                    frames: std::mem::replace(&mut frames, Vec::with_capacity(8192)),
+                };
+                if tx.blocking_send(batch).is_err() {
+                    return Ok(reader.stats().clone());
+                }
+            }
+            if replay.progress && last_print.elapsed() > Duration::from_millis(500) {
+                last_print = Instant::now();
+                let pct = 100.0 * reader.bytes_read() as f64 / reader.total_bytes().max(1) as f64;
+                let n = progress.frames.load(Ordering::Relaxed);
+                let rate = n as f64 / start_wall.elapsed().as_secs_f64().max(1e-9);
+                eprint!("\rreplay: {pct:5.1} %  {n} frames  {rate:.0} frames/s   ");
+            }
+            if !more {
+                break;
+            }
+        }
+        last_stats = reader.stats().clone();
+        progress.passes.fetch_add(1, Ordering::Relaxed);
+        if replay.progress {
+            eprintln!();
+        }
+        if !replay.loop_ {
+            return Ok(last_stats);
+        }
+        let Some(first) = first_in_pass else {
+            return Ok(last_stats); // an empty file would loop forever doing nothing
+        };
+        offset_s += (last_in_pass - first) + replay.loop_gap_s;
+    }
+}
+
+/// Sends `frames` in slices, sleeping until each slice's feed time is due.
+fn send_paced(
+    frames: &[RawFrame],
+    speed: f64,
+    start_wall: Instant,
+    start_feed: &mut Option<f64>,
+    tx: &mpsc::Sender<FrameBatch>,
+    feed: &Arc<str>,
+    shutdown: &CancellationToken,
+) {
+    let mut rest = frames;
+    while let Some(first) = rest.first() {
+        let t0 = *start_feed.get_or_insert(first.time_s);
+        let due = |t: f64| Duration::from_secs_f64(((t - t0) / speed).max(0.0));
+        let slice_end = due(first.time_s) + PACING_SLICE;
+        let n = rest
+            .iter()
+            .position(|f| due(f.time_s) >= slice_end)
+            .unwrap_or(rest.len());
+        let (now, later) = rest.split_at(n);
+        let wait = due(first.time_s).saturating_sub(start_wall.elapsed());
+        // Sleep in short steps so shutdown is noticed within 100 ms.
+        let wake = Instant::now() + wait;
+        while Instant::now() < wake {
+            if shutdown.is_cancelled() {
+                return;
+            }
+            std::thread::sleep((wake - Instant::now()).min(Duration::from_millis(100)));
+        }
+        let batch = FrameBatch {
+            feed: feed.clone(),
+            frames: now.to_vec(),
+        };
+        if tx.blocking_send(batch).is_err() {
+            return;
+        }
+        rest = later;
+    }
+}

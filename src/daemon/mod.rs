@@ -6,6 +6,7 @@
 //! `JoinSet`s, never a polled flag).
 
 pub mod aircraft;
+pub mod pipeline;
 pub mod registry;
 pub mod router;
 pub mod source;

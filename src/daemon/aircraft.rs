@@ -98,6 +98,8 @@ pub struct Aircraft {
     /// Last height used for a position, m, and whether it was measured.
     last_alt_m: Option<f64>,
     last_pos_deg: Option<(f64, f64)>,
+    /// The last position handed to the tracker: (t, lat, lon, height m), for evaluation.
+    last_fix: Option<(f64, f64, f64, f64)>,
     on_ground: bool,
     messages: u64,
     last_seen: f64,
@@ -121,6 +123,7 @@ impl Aircraft {
             baro_alt_ft: None,
             last_alt_m: None,
             last_pos_deg: None,
+            last_fix: None,
             on_ground: false,
             messages: 0,
             last_seen: f64::NEG_INFINITY,
@@ -128,6 +131,11 @@ impl Aircraft {
             positions_rejected: 0,
             updates: 0,
         }
+    }
+
+    /// The last decoded position given to the tracker: (t, lat, lon, height m).
+    pub fn last_fix(&self) -> Option<(f64, f64, f64, f64)> {
+        self.last_fix
     }
 
     /// Tracker updates done so far.
@@ -255,6 +263,7 @@ impl Aircraft {
             }
             None => (self.last_alt_m.unwrap_or(0.0), UNMEASURED_VARIANCE),
         };
+        self.last_fix = Some((t, lat, lon, h_m));
         let frame = *self
             .frame
             .get_or_insert_with(|| LocalFrame::new(lat, lon, 0.0));
@@ -314,6 +323,15 @@ impl Aircraft {
         let (lat, lon, alt_m) = frame.to_geodetic(&est.pos_m);
         let v = frame.vel_from_enu(lat, lon, &est.vel_mps);
         let (ve, vn, vu) = (v.x, v.y, v.z);
+        let to_rows = |m: Matrix3<f64>| {
+            [
+                [m[(0, 0)], m[(0, 1)], m[(0, 2)]],
+                [m[(1, 0)], m[(1, 1)], m[(1, 2)]],
+                [m[(2, 0)], m[(2, 1)], m[(2, 2)]],
+            ]
+        };
+        let pos_cov = to_rows(frame.cov_from_enu(lat, lon, &est.pos_cov_m2));
+        let vel_cov = to_rows(frame.cov_from_enu(lat, lon, &est.vel_cov_m2ps2));
         let track_deg = ve.atan2(vn).to_degrees().rem_euclid(360.0);
         Some(TrackState {
             t: est.t_s,
@@ -345,6 +363,8 @@ impl Aircraft {
             last_seen: self.last_seen,
             positions_accepted: self.positions_accepted,
             positions_rejected: self.positions_rejected,
+            pos_cov_enu_m2: pos_cov,
+            vel_cov_enu_m2ps2: vel_cov,
         })
     }
 }

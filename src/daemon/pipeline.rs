@@ -10,6 +10,17 @@ use crate::feed::RawFrame;
 use std::collections::HashMap;
 use std::time::Instant;
 
+/// What one frame changed.
+#[derive(Clone, Debug)]
+pub struct Update {
+    /// The aircraft's new state, when the tracker took a measurement.
+    pub state: Option<TrackState>,
+    /// Wall time of the aircraft's handling of the message, ns.
+    pub cpu_ns: u64,
+    /// A new decoded position given to the tracker: (t, lat, lon, height m).
+    pub fix: Option<(f64, f64, f64, f64)>,
+}
+
 /// Decoder plus one [`Aircraft`] per address, synchronously.
 pub struct SyncPipeline {
     decoder: Decoder,
@@ -28,25 +39,23 @@ impl SyncPipeline {
         }
     }
 
-    /// Takes one frame; when it updates a track, calls `on_update` with the new state and the
-    /// wall time the aircraft's handling of that message took (CPR, measurement, filter), ns.
-    pub fn push(&mut self, frame: &RawFrame, mut on_update: impl FnMut(&TrackState, u64)) {
-        let Ok(d) = self.decoder.decode(frame) else {
-            return;
-        };
+    /// Takes one frame. Returns what it changed: a new decoded position (what the tracker was
+    /// given) and/or a new track state with the wall time the aircraft's handling of the
+    /// message took (CPR, measurement, filter), ns.
+    pub fn push(&mut self, frame: &RawFrame) -> Option<Update> {
+        let d = self.decoder.decode(frame).ok()?;
         let cfg = &self.cfg;
         let ac = self
             .aircraft
             .entry(d.icao)
             .or_insert_with(|| Aircraft::new(d.icao, cfg));
+        let fix_before = ac.last_fix();
         let start = Instant::now();
         let updated = ac.handle(&d, &self.stats);
-        let ns = start.elapsed().as_nanos() as u64;
-        if updated {
-            if let Some(s) = ac.snapshot() {
-                on_update(&s, ns);
-            }
-        }
+        let cpu_ns = start.elapsed().as_nanos() as u64;
+        let fix = ac.last_fix().filter(|f| Some(*f) != fix_before);
+        let state = if updated { ac.snapshot() } else { None };
+        (fix.is_some() || state.is_some()).then_some(Update { state, cpu_ns, fix })
     }
 
     /// Counters so far (positions, updates, errors).

@@ -79,6 +79,10 @@ pub struct TrackState {
     pub last_seen: f64,
     pub positions_accepted: u64,
     pub positions_rejected: u64,
+    /// Position covariance in the east-north-up axes at the aircraft, m^2 (row-major 3x3).
+    pub pos_cov_enu_m2: [[f64; 3]; 3],
+    /// Velocity covariance in the same axes, (m/s)^2.
+    pub vel_cov_enu_m2ps2: [[f64; 3]; 3],
 }
 
 /// What the API can read: every aircraft's latest snapshot.

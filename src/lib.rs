@@ -11,5 +11,6 @@ pub mod api;
 pub mod config;
 pub mod daemon;
 pub mod decode;
+pub mod eval;
 pub mod feed;
 pub mod track;

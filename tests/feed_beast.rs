@@ -144,6 +144,9 @@ fn parser_is_reusable_after_finish() {
     let mut expect: Vec<RefFrame> = want.clone();
     expect.remove(120);
     assert_frames(&got, &expect);
-    assert_eq!(p.stats().truncated_tail_bytes, (mid - want[120].start) as u64);
+    assert_eq!(
+        p.stats().truncated_tail_bytes,
+        (mid - want[120].start) as u64
+    );
     assert_eq!(p.stats().garbage_bytes, (want[120].end - mid) as u64);
 }

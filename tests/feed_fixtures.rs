@@ -22,7 +22,12 @@ fn read_all(name: &str) -> (Format, Vec<RawFrame>, ParseStats, u64) {
         frames.extend_from_slice(&batch);
     }
     assert_eq!(reader.bytes_read(), reader.total_bytes());
-    (reader.format(), frames, reader.stats().clone(), reader.total_bytes())
+    (
+        reader.format(),
+        frames,
+        reader.stats().clone(),
+        reader.total_bytes(),
+    )
 }
 
 fn clean(frames: u64) -> ParseStats {

@@ -95,8 +95,14 @@ fn upper_and_lower_case_hex_are_the_same_frames() {
         let upper = with_hex_case(&text, true);
         let lower = with_hex_case(&text, false);
         assert_ne!(upper, lower);
-        assert!(parse(format, upper.as_bytes()) == parse(format, lower.as_bytes()), "{name}");
-        assert!(parse(format, upper.as_bytes()) == parse(format, text.as_bytes()), "{name}");
+        assert!(
+            parse(format, upper.as_bytes()) == parse(format, lower.as_bytes()),
+            "{name}"
+        );
+        assert!(
+            parse(format, upper.as_bytes()) == parse(format, text.as_bytes()),
+            "{name}"
+        );
     }
 }
 
@@ -154,7 +160,10 @@ fn cut_final_line_is_a_truncated_tail() {
             let (got, stats) = parse(format, data.as_bytes());
             let kept = if mode_ac { want.len() } else { want.len() - 1 };
             assert_eq!(got.len(), kept, "{name} cut {cut}");
-            assert!(got[..want.len() - 1] == want[..want.len() - 1], "{name} cut {cut}");
+            assert!(
+                got[..want.len() - 1] == want[..want.len() - 1],
+                "{name} cut {cut}"
+            );
             if mode_ac {
                 assert_eq!(got[kept - 1].bytes(), &feed_common::hex(field)[..]);
             } else {

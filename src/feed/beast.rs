@@ -207,7 +207,9 @@ mod tests {
         let mut body = vec![0x00, 0x00, 0x1a, 0x00, 0x00, 0x1a, 0x1a];
         body.extend_from_slice(&df17);
         let mut wire = frame(b'3', &body);
-        let short = [0, 0, 0, 0, 0, 0x1b, 0x20, 0x5d, 0x1a, 0x40, 0xd6, 0x1a, 0x00, 0x01];
+        let short = [
+            0, 0, 0, 0, 0, 0x1b, 0x20, 0x5d, 0x1a, 0x40, 0xd6, 0x1a, 0x00, 0x01,
+        ];
         wire.extend(frame(b'2', &short));
         assert_eq!(wire.len(), 2 + 21 + 3 + 2 + 14 + 2);
 
@@ -245,7 +247,10 @@ mod tests {
     #[test]
     fn incomplete_frame_is_left_unconsumed() {
         let mut wire = frame(b'1', &[0, 0, 0, 0xb7, 0x1b, 0x00, 0x55, 0x02, 0x40]);
-        wire.extend(frame(b'2', &[0, 0, 0, 0xb7, 0x1b, 0x01, 9, 1, 2, 3, 4, 5, 6, 7]));
+        wire.extend(frame(
+            b'2',
+            &[0, 0, 0, 0xb7, 0x1b, 0x01, 9, 1, 2, 3, 4, 5, 6, 7],
+        ));
         for cut in 11..wire.len() {
             let mut p = BeastParser::new();
             let (out, used) = parse_all(&mut p, &wire[..cut]);

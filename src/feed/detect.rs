@@ -53,7 +53,10 @@ mod tests {
 
     #[test]
     fn small_heads() {
-        assert_eq!(detect(b"*5DAD57202809F9;\n*02E18E3D81350E;\n"), Some(Format::Avr));
+        assert_eq!(
+            detect(b"*5DAD57202809F9;\n*02E18E3D81350E;\n"),
+            Some(Format::Avr)
+        );
         assert_eq!(detect(b"1.5,5DAD57202809F9\n"), Some(Format::Csv));
         assert_eq!(
             detect(b"2015-03-03T16:12:24.846557    5D4840D6F87407"),

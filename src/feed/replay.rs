@@ -79,7 +79,10 @@ impl FileReader {
         }
         let filled = self.pending.len();
         self.pending.resize(filled + CHUNK_BYTES, 0);
-        let n = match read_full(&mut self.file, self.pending.get_mut(filled..).unwrap_or(&mut [])) {
+        let n = match read_full(
+            &mut self.file,
+            self.pending.get_mut(filled..).unwrap_or(&mut []),
+        ) {
             Ok(n) => n,
             Err(source) => {
                 self.pending.truncate(filled);
@@ -91,7 +94,10 @@ impl FileReader {
         };
         self.pending.truncate(filled + n);
         self.bytes_read += n as u64;
-        let used = self.parser.parse(&self.pending, out).min(self.pending.len());
+        let used = self
+            .parser
+            .parse(&self.pending, out)
+            .min(self.pending.len());
         self.pending.drain(..used);
         if n == 0 {
             self.parser.finish_into(&self.pending, out);
@@ -153,13 +159,20 @@ mod tests {
         std::fs::write(&path, "hello\nworld\n").unwrap();
         let err = FileReader::open(&path, None, 1.0).err();
         std::fs::remove_file(&path).unwrap();
-        assert!(matches!(err, Some(FeedError::UnknownFormat { .. })), "{err:?}");
+        assert!(
+            matches!(err, Some(FeedError::UnknownFormat { .. })),
+            "{err:?}"
+        );
     }
 
     #[test]
     fn reads_a_small_file_to_the_end() {
         let path = std::env::temp_dir().join(format!("feed-small-{}.csv", std::process::id()));
-        std::fs::write(&path, "1.0,5DAD57202809F9\n2.0,5DAD57202809F9\n3.0,5DAD5720").unwrap();
+        std::fs::write(
+            &path,
+            "1.0,5DAD57202809F9\n2.0,5DAD57202809F9\n3.0,5DAD5720",
+        )
+        .unwrap();
         let mut r = FileReader::open(&path, None, 1.0).unwrap();
         std::fs::remove_file(&path).unwrap();
         assert_eq!(r.format(), Format::Csv);

@@ -343,7 +343,10 @@ mod tests {
         assert_eq!(parse_iso_utc(b"1970-01-01T00:00:00"), Some(0.0));
         assert_eq!(parse_iso_utc(b"2000-03-01T00:00:00Z"), Some(951_868_800.0));
         assert_eq!(parse_iso_utc(b"2016-12-31T23:59:59"), Some(1_483_228_799.0));
-        assert_eq!(parse_iso_utc(b"2024-02-29T12:00:00.5"), Some(1_709_208_000.5));
+        assert_eq!(
+            parse_iso_utc(b"2024-02-29T12:00:00.5"),
+            Some(1_709_208_000.5)
+        );
         assert_eq!(
             parse_iso_utc(b"2015-03-03T16:12:24.846557"),
             Some(1_425_399_144.846557)
@@ -365,7 +368,10 @@ mod tests {
         assert_eq!(padded, Some(vec![0x21, 0x28, 0x00, 0xbf, 0x40, 0xf1, 0xef]));
         // DF17 needs 28 digits.
         assert_eq!(frame_from_hex(b"8DA64E2AEA0538").map(|(_, n)| n), None);
-        assert_eq!(frame_from_hex(b"8DA64E2AEA0538A0015F08DC46E5").map(|(_, n)| n), Some(14));
+        assert_eq!(
+            frame_from_hex(b"8DA64E2AEA0538A0015F08DC46E5").map(|(_, n)| n),
+            Some(14)
+        );
         assert_eq!(frame_from_hex(b"0000").map(|(_, n)| n), Some(2));
         assert_eq!(frame_from_hex(b"5dad57202809f"), None);
         assert_eq!(frame_from_hex(b"5dad57202809fg"), None);
@@ -382,7 +388,10 @@ mod tests {
         assert_eq!(out[1].bytes()[0], 0x8d);
         assert_eq!(out[2].bytes(), &[0x8d, 0xa6]);
         // 10 Hz nominal rate: frames n = 0, 1, 2 at 0, 0.1, 0.2 s.
-        assert_eq!(out.iter().map(|f| f.time_s).collect::<Vec<_>>(), [0.0, 0.1, 0.2]);
+        assert_eq!(
+            out.iter().map(|f| f.time_s).collect::<Vec<_>>(),
+            [0.0, 0.1, 0.2]
+        );
         assert_eq!(stats.bad_lines, 2);
         assert_eq!(stats.frames, 3);
     }
@@ -406,7 +415,10 @@ mod tests {
         assert_eq!(out[0].time_s, 1_753_827_785.808_609_2);
         assert_eq!(stats.bad_lines, 1);
 
-        let (out, _, _) = run(Format::Iso, "2015-03-03T16:12:24.846557    5D4840D6F87407\n");
+        let (out, _, _) = run(
+            Format::Iso,
+            "2015-03-03T16:12:24.846557    5D4840D6F87407\n",
+        );
         assert_eq!(out[0].time_s, 1_425_399_144.846_557);
         assert_eq!(out[0].bytes(), &[0x5d, 0x48, 0x40, 0xd6, 0xf8, 0x74, 0x07]);
 

@@ -60,7 +60,9 @@ pub fn beast_reference(wire: &[u8]) -> Vec<RefFrame> {
             }
             body.push(b);
         }
-        let counter = body[..6].iter().fold(0u64, |acc, &b| acc * 256 + u64::from(b));
+        let counter = body[..6]
+            .iter()
+            .fold(0u64, |acc, &b| acc * 256 + u64::from(b));
         frames.push(RefFrame {
             start,
             end: i,

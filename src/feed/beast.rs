@@ -1,9 +1,284 @@
-//! SCAFFOLD: replaced by the feed work.
-use super::{FrameParser, ParseStats, RawFrame};
-pub struct BeastParser(ParseStats);
-impl BeastParser { pub fn new() -> Self { Self(Default::default()) } }
+//! Beast binary framing (Mode-S Beast receivers, readsb/dump1090 port 30005).
+//!
+//! A frame on the wire:
+//!
+//! ```text
+//! 0x1a  type  counter[6]  signal[1]  data[2 | 7 | 14]
+//! ```
+//!
+//! `type` is `'1'` (Mode A/C, 2 data bytes), `'2'` (Mode S short, 56 bits) or `'3'` (Mode S
+//! long, 112 bits); `counter` is the receiver's 48-bit 12 MHz clock, big-endian; `signal` is
+//! the RSSI byte. Every 0x1a inside counter, signal or data is sent twice, so a lone 0x1a
+//! followed by anything but 0x1a always starts a frame. Radarcape receivers also send type
+//! `'4'` status frames with a 14-byte body; they are skipped whole and counted as bad frames
+//! (they carry no Mode S reply). Anything else is skipped and counted, and parsing
+//! resynchronises on the next 0x1a that starts a frame, as readsb's `readBeast` does.
+
+use super::{FeedClock, FrameParser, ParseStats, RawFrame};
+
+/// The frame marker, and the escape for a 0x1a data byte.
+const ESC: u8 = 0x1a;
+
+/// Counter (6 bytes) and signal (1 byte) precede the data.
+const HEADER_BYTES: usize = 7;
+
+/// Longest unescaped body: header plus a 14-byte long frame (or a `'4'` status body).
+const MAX_BODY_BYTES: usize = HEADER_BYTES + 14;
+
+/// What follows `0x1a type`, by type byte.
+#[derive(Clone, Copy)]
+enum Kind {
+    /// A Mode A/C or Mode S reply with this many data bytes.
+    Frame(usize),
+    /// A Radarcape status frame: skipped whole.
+    Status,
+}
+
+fn kind(type_byte: u8) -> Option<Kind> {
+    match type_byte {
+        b'1' => Some(Kind::Frame(2)),
+        b'2' => Some(Kind::Frame(7)),
+        b'3' => Some(Kind::Frame(14)),
+        b'4' => Some(Kind::Status),
+        _ => None,
+    }
+}
+
+impl Kind {
+    fn body_bytes(self) -> usize {
+        match self {
+            Self::Frame(data) => HEADER_BYTES + data,
+            Self::Status => MAX_BODY_BYTES,
+        }
+    }
+}
+
+/// Result of unescaping one frame body.
+enum Body {
+    /// The body is complete; this many escaped bytes were used.
+    Complete(usize),
+    /// The buffer ends inside the body: wait for more bytes.
+    Incomplete,
+    /// A 0x1a not followed by 0x1a at this offset: the frame was cut short and a new one
+    /// starts there.
+    Broken(usize),
+}
+
+/// Copies `want` unescaped bytes from `src` into `dst`.
+#[inline]
+fn unescape(src: &[u8], want: usize, dst: &mut [u8; MAX_BODY_BYTES]) -> Body {
+    // Fast path: no escape in the first `want` bytes (the vast majority of frames).
+    if let (Some(head), Some(slot)) = (src.get(..want), dst.get_mut(..want)) {
+        if !head.contains(&ESC) {
+            slot.copy_from_slice(head);
+            return Body::Complete(want);
+        }
+    }
+    let mut used = 0;
+    for slot in dst.iter_mut().take(want) {
+        let (byte, step) = match src.get(used..) {
+            None | Some([] | [ESC]) => return Body::Incomplete,
+            Some([ESC, ESC, ..]) => (ESC, 2),
+            Some([ESC, ..]) => return Body::Broken(used),
+            Some([b, ..]) => (*b, 1),
+        };
+        *slot = byte;
+        used += step;
+    }
+    Body::Complete(used)
+}
+
+/// Incremental Beast parser: see the module documentation for the format.
+#[derive(Debug, Default)]
+pub struct BeastParser {
+    clock: FeedClock,
+    stats: ParseStats,
+}
+
+impl BeastParser {
+    /// A parser at the start of a stream.
+    pub fn new() -> Self {
+        Self::default()
+    }
+}
+
 impl FrameParser for BeastParser {
-    fn parse(&mut self, _buf: &[u8], _out: &mut Vec<RawFrame>) -> usize { 0 }
-    fn finish(&mut self, _tail: &[u8]) {}
-    fn stats(&self) -> &ParseStats { &self.0 }
+    fn parse(&mut self, buf: &[u8], out: &mut Vec<RawFrame>) -> usize {
+        let frames_before = out.len();
+        let mut pos = 0;
+        let mut body = [0u8; MAX_BODY_BYTES];
+        while let Some(rest) = buf.get(pos..) {
+            match rest {
+                [] | [ESC] => break,
+                [ESC, type_byte, escaped @ ..] => {
+                    let Some(kind) = kind(*type_byte) else {
+                        // 0x1a 0x1a here is an escaped data byte seen out of sync; anything
+                        // else is an unknown frame type. Skip both bytes, as readsb does.
+                        if *type_byte != ESC {
+                            self.stats.bad_frames += 1;
+                        }
+                        self.stats.garbage_bytes += 2;
+                        pos += 2;
+                        continue;
+                    };
+                    let want = kind.body_bytes();
+                    match unescape(escaped, want, &mut body) {
+                        Body::Incomplete => break,
+                        Body::Broken(at) => {
+                            self.stats.bad_frames += 1;
+                            self.stats.garbage_bytes += 2 + at as u64;
+                            pos += 2 + at;
+                        }
+                        Body::Complete(used) => {
+                            pos += 2 + used;
+                            if let Kind::Frame(data) = kind {
+                                self.emit(&body, data, out);
+                            } else {
+                                self.stats.bad_frames += 1;
+                            }
+                        }
+                    }
+                }
+                _ => {
+                    let skip = rest.iter().position(|&b| b == ESC).unwrap_or(rest.len());
+                    self.stats.garbage_bytes += skip as u64;
+                    pos += skip;
+                }
+            }
+        }
+        self.stats.frames += (out.len() - frames_before) as u64;
+        self.stats.clock_resets = self.clock.resets();
+        pos
+    }
+
+    fn finish(&mut self, tail: &[u8]) {
+        self.stats.truncated_tail_bytes += tail.len() as u64;
+    }
+
+    fn stats(&self) -> &ParseStats {
+        &self.stats
+    }
+}
+
+impl BeastParser {
+    /// Hands on one unescaped body: counter, signal, then `data` bytes.
+    #[inline]
+    fn emit(&mut self, body: &[u8; MAX_BODY_BYTES], data: usize, out: &mut Vec<RawFrame>) {
+        let [c0, c1, c2, c3, c4, c5, signal, ..] = *body;
+        let ticks = u64::from_be_bytes([0, 0, c0, c1, c2, c3, c4, c5]);
+        let time_s = self.clock.at_ticks(ticks);
+        let bytes = body.get(HEADER_BYTES..HEADER_BYTES + data).unwrap_or(&[]);
+        if let Some(frame) = RawFrame::new(time_s, bytes, Some(signal)) {
+            out.push(frame);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Escapes a body the way a Beast sender does: each 0x1a doubled.
+    fn frame(type_byte: u8, body: &[u8]) -> Vec<u8> {
+        let mut v = vec![ESC, type_byte];
+        for &b in body {
+            v.push(b);
+            if b == ESC {
+                v.push(ESC);
+            }
+        }
+        v
+    }
+
+    fn parse_all(p: &mut BeastParser, buf: &[u8]) -> (Vec<RawFrame>, usize) {
+        let mut out = Vec::new();
+        let used = p.parse(buf, &mut out);
+        (out, used)
+    }
+
+    #[test]
+    fn long_frame_with_escaped_counter_signal_and_data() {
+        // Counter 00 00 1a 00 00 1a = 436,207,642 ticks, signal 0x1a, and a DF17 frame
+        // (the ICAO Doc 9871 identification example 8D4840D6202CC371C32CE0576098) whose bytes
+        // hold no 0x1a; then a short frame with two 0x1a data bytes.
+        let df17 = [
+            0x8d, 0x48, 0x40, 0xd6, 0x20, 0x2c, 0xc3, 0x71, 0xc3, 0x2c, 0xe0, 0x57, 0x60, 0x98,
+        ];
+        let mut body = vec![0x00, 0x00, 0x1a, 0x00, 0x00, 0x1a, 0x1a];
+        body.extend_from_slice(&df17);
+        let mut wire = frame(b'3', &body);
+        let short = [
+            0, 0, 0, 0, 0, 0x1b, 0x20, 0x5d, 0x1a, 0x40, 0xd6, 0x1a, 0x00, 0x01,
+        ];
+        wire.extend(frame(b'2', &short));
+        assert_eq!(wire.len(), 2 + 21 + 3 + 2 + 14 + 2);
+
+        let mut p = BeastParser::new();
+        let (out, used) = parse_all(&mut p, &wire);
+        assert_eq!(used, wire.len());
+        assert_eq!(out.len(), 2);
+        assert_eq!(out[0].bytes(), &df17);
+        assert_eq!(out[0].signal, Some(0x1a));
+        assert_eq!(out[0].time_s, 436_207_642.0 / 12e6);
+        assert_eq!(out[1].bytes(), &[0x5d, 0x1a, 0x40, 0xd6, 0x1a, 0x00, 0x01]);
+        assert_eq!(out[1].signal, Some(0x20));
+        // Its counter (27 ticks) steps back from the first frame's: the clock rebases and
+        // the frame keeps the last time.
+        assert_eq!(out[1].time_s, out[0].time_s);
+        assert_eq!(p.stats().clock_resets, 1);
+        assert_eq!(p.stats().frames, 2);
+        assert_eq!(p.stats().garbage_bytes, 0);
+    }
+
+    #[test]
+    fn mode_ac_frame() {
+        // 12,000,000 ticks = 1 s; squawk-style 2-byte reply.
+        let wire = frame(b'1', &[0, 0, 0, 0xb7, 0x1b, 0x00, 0x55, 0x02, 0x40]);
+        let mut p = BeastParser::new();
+        let (out, used) = parse_all(&mut p, &wire);
+        assert_eq!(used, 11);
+        assert_eq!(out.len(), 1);
+        assert!(out[0].is_mode_ac());
+        assert_eq!(out[0].bytes(), &[0x02, 0x40]);
+        assert_eq!(out[0].time_s, 1.0);
+        assert_eq!(out[0].signal, Some(0x55));
+    }
+
+    #[test]
+    fn incomplete_frame_is_left_unconsumed() {
+        let mut wire = frame(b'1', &[0, 0, 0, 0xb7, 0x1b, 0x00, 0x55, 0x02, 0x40]);
+        wire.extend(frame(
+            b'2',
+            &[0, 0, 0, 0xb7, 0x1b, 0x01, 9, 1, 2, 3, 4, 5, 6, 7],
+        ));
+        for cut in 11..wire.len() {
+            let mut p = BeastParser::new();
+            let (out, used) = parse_all(&mut p, &wire[..cut]);
+            assert_eq!((out.len(), used), (1, 11), "cut at {cut}");
+            assert_eq!(p.stats().garbage_bytes, 0);
+        }
+        let mut p = BeastParser::new();
+        // A body that ends on a lone 0x1a cannot be judged yet.
+        let esc_tail = [ESC, b'2', 0, 0, ESC];
+        assert_eq!(parse_all(&mut p, &esc_tail).1, 0);
+        p.finish(&esc_tail);
+        assert_eq!(p.stats().truncated_tail_bytes, 5);
+    }
+
+    #[test]
+    fn status_unknown_type_and_broken_frame_are_counted() {
+        let good = frame(b'1', &[0, 0, 0, 0xb7, 0x1b, 0x00, 0x55, 0x02, 0x40]);
+        let mut wire = frame(b'4', &[0u8; 21]);
+        wire.extend_from_slice(&[ESC, b'9', 0xaa, 0xbb]); // unknown type, 2 stray bytes
+        wire.extend_from_slice(&good);
+        wire.extend_from_slice(&[ESC, b'3', 1, 2, 3]); // cut short by the next frame
+        wire.extend_from_slice(&good);
+        let mut p = BeastParser::new();
+        let (out, used) = parse_all(&mut p, &wire);
+        assert_eq!(used, wire.len());
+        assert_eq!(out.len(), 2);
+        assert_eq!(p.stats().bad_frames, 3);
+        // 2 (unknown header) + 2 (stray) + 5 (broken frame)
+        assert_eq!(p.stats().garbage_bytes, 9);
+    }
 }

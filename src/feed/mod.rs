@@ -5,12 +5,16 @@
 //! skips in [`ParseStats`]. Time is always the feed's own time in seconds, never the wall clock.
 
 pub mod beast;
+pub mod clock;
 pub mod detect;
 pub mod replay;
 pub mod tcp;
 pub mod text;
 
 use serde::Serialize;
+use std::path::PathBuf;
+
+pub use clock::FeedClock;
 
 /// Longest Mode S frame: 112 bits.
 pub const MAX_FRAME_BYTES: usize = 14;
@@ -120,6 +124,15 @@ pub trait FrameParser: Send {
     /// and forget it. A parser must be usable again after this (a reconnect).
     fn finish(&mut self, tail: &[u8]);
 
+    /// Like [`finish`](Self::finish), for formats whose last record needs no terminator: a
+    /// text file's final line without a newline is still a line, and is parsed into `out` if
+    /// it is complete (counted as a truncated tail if not). Beast frames carry their own
+    /// length, so an unconsumed Beast tail is always incomplete and this is `finish`.
+    fn finish_into(&mut self, tail: &[u8], out: &mut Vec<RawFrame>) {
+        let _ = out;
+        self.finish(tail);
+    }
+
     /// Counters so far.
     fn stats(&self) -> &ParseStats;
 }
@@ -131,4 +144,23 @@ pub fn parser_for(format: Format, nominal_rate_hz: f64) -> Box<dyn FrameParser> 
         Format::Beast => Box::new(beast::BeastParser::new()),
         other => Box::new(text::TextParser::new(other, nominal_rate_hz)),
     }
+}
+
+/// What can go wrong opening or reading a recording (the TCP client never fails: it counts
+/// its errors in [`tcp::FeedStatus`] and reconnects).
+#[derive(Debug, thiserror::Error)]
+pub enum FeedError {
+    /// The file could not be opened or read.
+    #[error("cannot read {}: {source}", path.display())]
+    Io {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    /// No format was given and [`detect::detect`] recognised none in the file's first bytes.
+    #[error(
+        "cannot tell the format of {}: not Beast, AVR, CSV, ISO-time or JSON lines (name it)",
+        path.display()
+    )]
+    UnknownFormat { path: PathBuf },
 }

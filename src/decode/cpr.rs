@@ -570,8 +570,7 @@ impl CprDecoder {
             };
             let allowed_m = max_speed_mps * (t_s - last.t_s) + self.config.position_slack_m;
             let distance_m = haversine_m(last.lat_deg, last.lon_deg, lat_deg, lon_deg);
-            // `!(<=)` so that a NaN distance is rejected too.
-            if !(distance_m <= allowed_m) {
+            if distance_m.is_nan() || distance_m > allowed_m {
                 self.consecutive_rejections = self.consecutive_rejections.saturating_add(1);
                 if self.consecutive_rejections >= self.config.rejections_before_reset {
                     self.last = None;

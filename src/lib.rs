@@ -12,4 +12,5 @@ pub mod config;
 pub mod daemon;
 pub mod decode;
 pub mod feed;
+pub mod sim;
 pub mod track;

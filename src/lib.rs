@@ -13,4 +13,5 @@ pub mod daemon;
 pub mod decode;
 pub mod eval;
 pub mod feed;
+pub mod sim;
 pub mod track;

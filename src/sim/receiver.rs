@@ -1,0 +1,518 @@
+//! The receiver model: what a ground station would record from the simulated aircraft.
+//!
+//! Each aircraft transmits, as a DO-260B transponder does (§2.2.3.3.1): airborne positions
+//! alternating even and odd, and airborne velocities, each every `report_period_s` (0.5 s by
+//! default: 2 per second); its identification every [`IDENT_PERIOD_S`] and its operational
+//! status every [`STATUS_PERIOD_S`]. Every interval gets a uniform jitter of +-`jitter_s`
+//! (0.1 s gives the standard's 0.4-0.6 s) and every stream starts at a random phase. The
+//! receiver hears each frame with `reception_probability`; some heard frames get 1-3 bit
+//! errors (`corrupt_frame_rate`, CRC left wrong) and runs of junk precede some frames
+//! (`junk_rate`).
+//!
+//! Measurement errors: the horizontal position is the truth plus white Gaussian noise of
+//! σ = EPU/2.4477 per axis, EPU being the NACp's 95 % bound (for a circular 2-D Gaussian the
+//! 95 % radius is σ sqrt(-2 ln 0.05) = 2.4477 σ), then CPR-quantised (~5 m); the velocity is
+//! the truth plus noise of σ = bound/2.4477 per horizontal axis and σ = bound/1.96 vertically
+//! from the NACv's 95 % bounds, then quantised to 1 kt and 64 fpm; the altitude is the truth
+//! quantised to 25 ft (no barometric error). Times are the emission times on the 12 MHz Beast
+//! clock (no propagation delay: 0.3 ms at 100 km).
+//!
+//! Outputs, all time-ordered and byte-identical for the same seed: `PREFIX.beast`,
+//! `PREFIX.avr` and `PREFIX.truth.csv`.
+
+use super::encode::{self, VelocityReport, CATEGORY_LARGE, M_PER_FT, MPS_PER_FPM, MPS_PER_KT};
+use super::scenario::{AircraftPlan, Scenario};
+use super::truth::{Flight, TruthState, TRUTH_HEADER};
+use super::wgs84;
+use super::{SimError, SimSummary};
+use crate::decode::{Callsign, Icao, VerticalRateSource};
+use rand::rngs::StdRng;
+use rand::{Rng, SeedableRng};
+use rand_distr::StandardNormal;
+use std::cmp::Reverse;
+use std::collections::BinaryHeap;
+use std::fs::File;
+use std::io::{self, BufWriter, Write};
+use std::path::{Path, PathBuf};
+
+/// Beast timestamps count a 12 MHz clock (the readsb/dump1090 "MLAT" counter).
+pub const TICKS_PER_S: f64 = 12.0e6;
+/// Identification every 5 s (DO-260B §2.2.3.3.1.4: 4.8-5.2 s).
+pub const IDENT_PERIOD_S: f64 = 5.0;
+/// Operational status every 2.5 s (DO-260B §2.2.3.3.1.6: 2.4-2.6 s while airborne and
+/// nothing changes).
+pub const STATUS_PERIOD_S: f64 = 2.5;
+/// 95 % radius of a circular 2-D Gaussian in units of its per-axis σ: sqrt(-2 ln 0.05).
+pub const R95_2D_PER_SIGMA: f64 = 2.447_746_830_680_816;
+/// 95 % two-sided bound of a 1-D Gaussian in units of σ.
+pub const R95_1D_PER_SIGMA: f64 = 1.959_963_984_540_054;
+/// Range at which the signal byte saturates (amplitude falls as 1/range beyond it), metres.
+const FULL_SIGNAL_RANGE_M: f64 = 5_000.0;
+/// Beast escape byte (and frame start).
+const ESC: u8 = 0x1a;
+/// Longest junk run, bytes.
+const MAX_JUNK: usize = 16;
+
+/// Horizontal 95 % position bound (EPU) of a NACp, metres (DO-260B §2.2.3.2.7.2.11,
+/// Table 2-71: NACp 1 < 10 NM ... 11 < 3 m). `None` for 0 (unknown) and values above 11.
+pub fn nac_p_epu_m(nac_p: u8) -> Option<f64> {
+    Some(match nac_p {
+        1 => 18_520.0,
+        2 => 7_408.0,
+        3 => 3_704.0,
+        4 => 1_852.0,
+        5 => 926.0,
+        6 => 555.6,
+        7 => 185.2,
+        8 => 92.6,
+        9 => 30.0,
+        10 => 10.0,
+        11 => 3.0,
+        _ => return None,
+    })
+}
+
+/// 95 % bounds of a NACv, (horizontal m/s, vertical m/s) (DO-260B §2.2.3.2.6.1.5, Table
+/// 2-22: NACv 1 < 10 m/s and < 50 ft/s ... 4 < 0.3 m/s and < 1.5 ft/s). `None` for 0
+/// (unknown) and values above 4.
+pub fn nac_v_bounds_mps(nac_v: u8) -> Option<(f64, f64)> {
+    Some(match nac_v {
+        1 => (10.0, 50.0 * M_PER_FT),
+        2 => (3.0, 15.0 * M_PER_FT),
+        3 => (1.0, 5.0 * M_PER_FT),
+        4 => (0.3, 1.5 * M_PER_FT),
+        _ => return None,
+    })
+}
+
+/// The event streams of one aircraft, in the order they are served when they coincide.
+const TRUTH: usize = 0;
+const POSITION: usize = 1;
+const VELOCITY: usize = 2;
+const IDENT: usize = 3;
+const STATUS: usize = 4;
+const STREAMS: usize = 5;
+/// A stream that will never fire again.
+const NEVER: u64 = u64::MAX;
+
+/// Everything the emitters share: derived from the scenario once.
+struct Config {
+    end_tick: u64,
+    truth_period_s: f64,
+    periods_s: [f64; STREAMS],
+    jitter_s: f64,
+    pos_sigma_m: f64,
+    vel_sigma_mps: f64,
+    vz_sigma_mps: f64,
+    reception_probability: f64,
+    corrupt_frame_rate: f64,
+    nac_p: u8,
+    nac_v: u8,
+    velocity_reports: bool,
+    ref_lat_rad: f64,
+    ref_lon_rad: f64,
+    ref_m: f64,
+    ref_n_cos: f64,
+}
+
+fn to_ticks(t_s: f64) -> u64 {
+    let t = (t_s * TICKS_PER_S).round();
+    if t.is_finite() && t >= 0.0 {
+        t as u64
+    } else {
+        0
+    }
+}
+
+/// SplitMix64 finaliser: decorrelates the per-aircraft seeds derived from one seed.
+fn mix(mut z: u64) -> u64 {
+    z = z.wrapping_add(0x9E37_79B9_7F4A_7C15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^ (z >> 31)
+}
+
+/// One aircraft's transmitter: its flight, its own random stream, and when each of its
+/// streams fires next.
+struct Emitter {
+    icao: Icao,
+    callsign: Callsign,
+    flight: Flight,
+    rng: StdRng,
+    next: [u64; STREAMS],
+    truth_k: u64,
+    odd: bool,
+    last_truth_tick: Option<u64>,
+}
+
+impl Emitter {
+    fn new(plan: AircraftPlan, index: usize, seed: u64, cfg: &Config) -> Self {
+        let mut rng = StdRng::seed_from_u64(mix(seed ^ mix(index as u64)));
+        let mut next = [0u64; STREAMS];
+        for (s, slot) in next.iter_mut().enumerate().skip(1) {
+            *slot = to_ticks(rng.gen::<f64>() * cfg.periods_s[s]);
+        }
+        if !cfg.velocity_reports {
+            next[VELOCITY] = NEVER;
+        }
+        let odd = rng.gen::<bool>();
+        Self {
+            icao: plan.icao,
+            callsign: plan.callsign,
+            flight: Flight::new(plan.trajectory),
+            rng,
+            next,
+            truth_k: 0,
+            odd,
+            last_truth_tick: None,
+        }
+    }
+
+    /// The earliest pending event (stream, tick); ties go to the lower stream index.
+    fn next_event(&self) -> (usize, u64) {
+        let mut best = (TRUTH, self.next[TRUTH]);
+        for (s, &t) in self.next.iter().enumerate().skip(1) {
+            if t < best.1 {
+                best = (s, t);
+            }
+        }
+        best
+    }
+
+    /// Reschedules stream `s` after an emission at `tick`: one period plus jitter later.
+    fn reschedule(&mut self, s: usize, tick: u64, cfg: &Config) {
+        let jitter = if cfg.jitter_s > 0.0 {
+            (2.0 * self.rng.gen::<f64>() - 1.0) * cfg.jitter_s
+        } else {
+            0.0
+        };
+        let step = to_ticks(cfg.periods_s.get(s).copied().unwrap_or(1.0) + jitter).max(1);
+        self.next[s] = tick.saturating_add(step);
+    }
+
+    /// Serves this aircraft's earliest event.
+    fn fire(&mut self, cfg: &Config, out: &mut Outputs) -> io::Result<()> {
+        let (s, tick) = self.next_event();
+        let t_s = tick as f64 / TICKS_PER_S;
+        let state = self.flight.state_at(t_s);
+        if s == TRUTH {
+            state.write_csv_row(&mut out.truth, self.icao)?;
+            out.summary.truth_rows += 1;
+            self.last_truth_tick = Some(tick);
+            self.truth_k += 1;
+            self.next[TRUTH] = to_ticks(self.truth_k as f64 * cfg.truth_period_s);
+            return Ok(());
+        }
+        let frame = match s {
+            POSITION => {
+                let f = self.position_frame(&state, cfg);
+                self.odd = !self.odd;
+                f
+            }
+            VELOCITY => self.velocity_frame(&state, cfg),
+            IDENT => encode::identification(self.icao, CATEGORY_LARGE, &self.callsign),
+            _ => encode::operational_status(self.icao, cfg.nac_p),
+        };
+        self.reschedule(s, tick, cfg);
+        self.deliver(s, tick, frame, &state, cfg, out)
+    }
+
+    fn position_frame(&mut self, s: &TruthState, cfg: &Config) -> [u8; 14] {
+        let dn: f64 = self.rng.sample::<f64, _>(StandardNormal) * cfg.pos_sigma_m;
+        let de: f64 = self.rng.sample::<f64, _>(StandardNormal) * cfg.pos_sigma_m;
+        let lat = s.lat_deg.to_radians();
+        let (m, n) = wgs84::radii_m(lat);
+        let lat_deg = (lat + dn / (m + s.alt_m)).to_degrees();
+        let lon_deg = (s.lon_deg.to_radians() + de / ((n + s.alt_m) * lat.cos())).to_degrees();
+        encode::airborne_position(self.icao, s.alt_m / M_PER_FT, lat_deg, lon_deg, self.odd)
+    }
+
+    fn velocity_frame(&mut self, s: &TruthState, cfg: &Config) -> [u8; 14] {
+        let mut noise = || -> f64 { self.rng.sample(StandardNormal) };
+        let ve = s.ve_mps + noise() * cfg.vel_sigma_mps;
+        let vn = s.vn_mps + noise() * cfg.vel_sigma_mps;
+        let vu = s.vu_mps + noise() * cfg.vz_sigma_mps;
+        encode::airborne_velocity(
+            self.icao,
+            &VelocityReport {
+                ve_kt: ve / MPS_PER_KT,
+                vn_kt: vn / MPS_PER_KT,
+                vrate_fpm: vu / MPS_PER_FPM,
+                vrate_source: VerticalRateSource::Baro,
+                nac_v: cfg.nac_v,
+            },
+        )
+    }
+
+    /// Reception, corruption, output, and the truth row that goes with a state report.
+    fn deliver(
+        &mut self,
+        s: usize,
+        tick: u64,
+        mut frame: [u8; 14],
+        state: &TruthState,
+        cfg: &Config,
+        out: &mut Outputs,
+    ) -> io::Result<()> {
+        out.summary.frames_emitted += 1;
+        if self.rng.gen::<f64>() >= cfg.reception_probability {
+            out.summary.frames_lost += 1;
+            return Ok(());
+        }
+        if cfg.corrupt_frame_rate > 0.0 && self.rng.gen::<f64>() < cfg.corrupt_frame_rate {
+            corrupt(&mut frame, &mut self.rng);
+            out.summary.frames_corrupted += 1;
+        }
+        match s {
+            POSITION => out.summary.position_frames += 1,
+            VELOCITY => out.summary.velocity_frames += 1,
+            IDENT => out.summary.identification_frames += 1,
+            _ => out.summary.status_frames += 1,
+        }
+        out.write_frame(tick, signal_byte(state, cfg), &frame)?;
+        if matches!(s, POSITION | VELOCITY) && self.last_truth_tick != Some(tick) {
+            state.write_csv_row(&mut out.truth, self.icao)?;
+            out.summary.truth_rows += 1;
+            self.last_truth_tick = Some(tick);
+        }
+        Ok(())
+    }
+}
+
+/// Flips 1 to 3 distinct bits anywhere in the 112 (parity included).
+fn corrupt(frame: &mut [u8; 14], rng: &mut StdRng) {
+    let n = rng.gen_range(1..=3usize);
+    let mut taken = [usize::MAX; 3];
+    for k in 0..n {
+        // Draw among the bits not yet taken, then skip over the taken ones in order.
+        let mut p = rng.gen_range(0..112 - k);
+        let mut sorted = taken;
+        sorted.sort_unstable();
+        for &t in sorted.iter().filter(|&&t| t != usize::MAX) {
+            if p >= t {
+                p += 1;
+            }
+        }
+        if let Some(slot) = taken.get_mut(k) {
+            *slot = p;
+        }
+        if let Some(b) = frame.get_mut(p / 8) {
+            *b ^= 0x80 >> (p % 8);
+        }
+    }
+}
+
+/// Beast signal byte: amplitude falling as 1/range from the reference (readsb reads it as
+/// amplitude: RSSI = 20 log10(byte/255) dBFS), full scale within 5 km.
+fn signal_byte(s: &TruthState, cfg: &Config) -> u8 {
+    let dn = (s.lat_deg.to_radians() - cfg.ref_lat_rad) * cfg.ref_m;
+    let mut dl = s.lon_deg.to_radians() - cfg.ref_lon_rad;
+    if dl > std::f64::consts::PI {
+        dl -= std::f64::consts::TAU;
+    } else if dl < -std::f64::consts::PI {
+        dl += std::f64::consts::TAU;
+    }
+    let de = dl * cfg.ref_n_cos;
+    let range = (de * de + dn * dn + s.alt_m * s.alt_m).sqrt().max(FULL_SIGNAL_RANGE_M);
+    (255.0 * FULL_SIGNAL_RANGE_M / range).round().clamp(1.0, 255.0) as u8
+}
+
+/// The three output files, the junk generator and the counters.
+struct Outputs {
+    beast: BufWriter<File>,
+    avr: BufWriter<File>,
+    truth: BufWriter<File>,
+    junk_rng: StdRng,
+    junk_rate: f64,
+    summary: SimSummary,
+}
+
+const HEX: &[u8; 16] = b"0123456789ABCDEF";
+
+impl Outputs {
+    /// Writes one frame to both feeds (with a junk run before it now and then).
+    fn write_frame(&mut self, tick: u64, signal: u8, frame: &[u8; 14]) -> io::Result<()> {
+        if self.junk_rate > 0.0 && self.junk_rng.gen::<f64>() < self.junk_rate {
+            self.write_junk()?;
+        }
+        // Beast: 0x1a '3' (long Mode S), then the 6-byte counter, the signal byte and the 14
+        // data bytes, each 0x1a among them doubled.
+        let mut buf = [0u8; 2 + 2 * 21];
+        buf[0] = ESC;
+        buf[1] = b'3';
+        let mut len = 2;
+        let counter = tick.to_be_bytes();
+        for &b in counter[2..].iter().chain(std::iter::once(&signal)).chain(frame.iter()) {
+            for _ in 0..if b == ESC { 2 } else { 1 } {
+                if let Some(slot) = buf.get_mut(len) {
+                    *slot = b;
+                    len += 1;
+                }
+            }
+        }
+        self.beast.write_all(buf.get(..len).unwrap_or(&buf))?;
+        // AVR with timestamp: '@', 12 hex digits of the counter, 28 of the frame, ';'.
+        let mut line = [0u8; 1 + 12 + 28 + 2];
+        line[0] = b'@';
+        for (k, &b) in counter[2..].iter().chain(frame.iter()).enumerate() {
+            line[1 + 2 * k] = HEX[usize::from(b >> 4)];
+            line[2 + 2 * k] = HEX[usize::from(b & 15)];
+        }
+        line[41] = b';';
+        line[42] = b'\n';
+        self.avr.write_all(&line)
+    }
+
+    /// 1 to 16 random bytes, none of them 0x1a (so that a Beast parser resynchronises
+    /// after exactly these bytes and counts them all), and a text line of 1 to 16 letters g-z
+    /// (never hex, so an AVR parser rejects the whole line).
+    fn write_junk(&mut self) -> io::Result<()> {
+        let n = self.junk_rng.gen_range(1..=MAX_JUNK);
+        let mut bytes = [0u8; MAX_JUNK];
+        let mut text = [b'\n'; MAX_JUNK + 1];
+        for k in 0..n {
+            let b: u8 = self.junk_rng.gen_range(0..=254);
+            bytes[k] = if b >= ESC { b + 1 } else { b };
+            text[k] = b'g' + self.junk_rng.gen_range(0..20u8);
+        }
+        self.beast.write_all(&bytes[..n])?;
+        self.avr.write_all(&text[..=n])?;
+        self.summary.junk_runs += 1;
+        self.summary.junk_bytes += n as u64;
+        Ok(())
+    }
+}
+
+/// `PREFIX` + `ext`, e.g. `out/run1` + `.beast`.
+fn with_ext(prefix: &Path, ext: &str) -> PathBuf {
+    let mut s = prefix.as_os_str().to_owned();
+    s.push(ext);
+    PathBuf::from(s)
+}
+
+fn create(path: &Path) -> Result<BufWriter<File>, SimError> {
+    File::create(path)
+        .map(|f| BufWriter::with_capacity(1 << 16, f))
+        .map_err(|source| SimError::Io {
+            path: path.to_owned(),
+            source,
+        })
+}
+
+/// Runs the scenario with `seed` and writes `PREFIX.beast`, `PREFIX.avr`, `PREFIX.truth.csv`.
+pub fn run(scenario: &Scenario, seed: u64, out_prefix: &Path) -> Result<SimSummary, SimError> {
+    let plans = scenario.plan()?;
+    let st = &scenario.settings;
+    let pos_epu = nac_p_epu_m(st.nac_p).unwrap_or(f64::NAN);
+    let (vel_bound, vz_bound) = nac_v_bounds_mps(st.nac_v).unwrap_or((f64::NAN, f64::NAN));
+    let ref_lat = scenario.reference.lat_deg.to_radians();
+    let (ref_m, ref_n) = wgs84::radii_m(ref_lat);
+    let cfg = Config {
+        end_tick: to_ticks(st.duration_s),
+        truth_period_s: st.truth_period_s,
+        periods_s: [
+            st.truth_period_s,
+            st.report_period_s,
+            st.report_period_s,
+            IDENT_PERIOD_S,
+            STATUS_PERIOD_S,
+        ],
+        jitter_s: st.jitter_s,
+        pos_sigma_m: pos_epu / R95_2D_PER_SIGMA,
+        vel_sigma_mps: vel_bound / R95_2D_PER_SIGMA,
+        vz_sigma_mps: vz_bound / R95_1D_PER_SIGMA,
+        reception_probability: st.reception_probability,
+        corrupt_frame_rate: st.corrupt_frame_rate,
+        nac_p: st.nac_p,
+        nac_v: st.nac_v,
+        velocity_reports: st.velocity_reports,
+        ref_lat_rad: ref_lat,
+        ref_lon_rad: scenario.reference.lon_deg.to_radians(),
+        ref_m,
+        ref_n_cos: ref_n * ref_lat.cos(),
+    };
+    let beast_path = with_ext(out_prefix, ".beast");
+    let avr_path = with_ext(out_prefix, ".avr");
+    let truth_path = with_ext(out_prefix, ".truth.csv");
+    let mut out = Outputs {
+        beast: create(&beast_path)?,
+        avr: create(&avr_path)?,
+        truth: create(&truth_path)?,
+        junk_rng: StdRng::seed_from_u64(mix(seed ^ 0x6A75_6E6B)),
+        junk_rate: st.junk_rate,
+        summary: SimSummary {
+            aircraft: plans.len(),
+            duration_s: st.duration_s,
+            seed,
+            beast_path: beast_path.clone(),
+            avr_path: avr_path.clone(),
+            truth_path: truth_path.clone(),
+            ..SimSummary::default()
+        },
+    };
+    let io_err = |path: &Path| {
+        let path = path.to_owned();
+        move |source| SimError::Io { path, source }
+    };
+    writeln!(out.truth, "{TRUTH_HEADER}").map_err(io_err(&truth_path))?;
+    let mut emitters: Vec<Emitter> = plans
+        .into_iter()
+        .enumerate()
+        .map(|(i, p)| Emitter::new(p, i, seed, &cfg))
+        .collect();
+    let mut heap: BinaryHeap<Reverse<(u64, usize)>> = emitters
+        .iter()
+        .enumerate()
+        .map(|(i, e)| Reverse((e.next_event().1, i)))
+        .collect();
+    while let Some(Reverse((tick, i))) = heap.pop() {
+        if tick > cfg.end_tick {
+            break;
+        }
+        let Some(e) = emitters.get_mut(i) else { continue };
+        // Which file failed is not known here; name the frame feed, the likeliest.
+        e.fire(&cfg, &mut out).map_err(io_err(&beast_path))?;
+        let (_, next) = e.next_event();
+        if next <= cfg.end_tick {
+            heap.push(Reverse((next, i)));
+        }
+    }
+    out.beast.flush().map_err(io_err(&beast_path))?;
+    out.avr.flush().map_err(io_err(&avr_path))?;
+    out.truth.flush().map_err(io_err(&truth_path))?;
+    Ok(out.summary)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sigma_from_95_percent_bounds() {
+        // P(r <= k σ) = 1 - exp(-k²/2) for a circular Gaussian: 0.95 at k = R95_2D_PER_SIGMA.
+        let k = R95_2D_PER_SIGMA;
+        assert!((1.0 - (-k * k / 2.0).exp() - 0.95).abs() < 1e-12);
+        assert_eq!(nac_p_epu_m(8), Some(92.6));
+        assert_eq!(nac_p_epu_m(0), None);
+        assert_eq!(nac_p_epu_m(12), None);
+        assert_eq!(nac_v_bounds_mps(2), Some((3.0, 4.572)));
+        assert_eq!(nac_v_bounds_mps(5), None);
+    }
+
+    #[test]
+    fn corruption_flips_one_to_three_distinct_bits() {
+        let mut rng = StdRng::seed_from_u64(3);
+        let mut counts = [0usize; 4];
+        for _ in 0..3000 {
+            let mut f = [0u8; 14];
+            corrupt(&mut f, &mut rng);
+            let ones: u32 = f.iter().map(|b| b.count_ones()).sum();
+            counts[ones as usize] += 1;
+        }
+        assert_eq!(counts[0], 0);
+        // Uniform over 1..=3: each about 1000 (binomial σ ≈ 26).
+        for c in &counts[1..] {
+            assert!((850..1150).contains(c), "{counts:?}");
+        }
+    }
+}

@@ -1,17 +1,17 @@
 //! Compact Position Reporting (DO-260B Appendix A.1.7; ICAO Doc 9871 §C.2.6).
 //!
 //! An extended squitter carries latitude and longitude as 17-bit fractions of a zone
-//! (YZ, XZ; DO-260B §2.2.3.2.3.7-8 airborne, §2.2.3.2.4.7-8 surface, ME bits 23-39 and 40-56).
+//! (YZ, XZ: ME bits 23-39 and 40-56; DO-260B §2.2.3.2.3 airborne, §2.2.3.2.4 surface).
 //! The zones are 360°/(4·NZ − i) of latitude (i = 0 even, 1 odd) and 360°/max(NL(lat) − i, 1)
 //! of longitude for airborne reports, and a quarter of that (90° spans) for surface reports,
-//! which buys four times the resolution with the same 17 bits (A.1.7.2 and A.1.7.3).
+//! which buys four times the resolution with the same 17 bits (A.1.7.2 and the encoding of A.1.7).
 //!
 //! Two ways back to degrees:
 //! - globally unambiguous: one even and one odd report, close in time (A.1.7.7 airborne,
 //!   A.1.7.8 surface). The surface solution is only defined modulo 90°, so a reference
 //!   (the receiver, or the aircraft's last position) picks one of the four;
 //! - locally unambiguous: one report and a reference within half a zone (180 NM airborne,
-//!   45 NM surface; A.1.7.5 and A.1.7.6).
+//!   45 NM surface; A.1.7.5).
 //!
 //! The pure functions ([`global_airborne`], [`global_surface`], [`local_airborne`],
 //! [`local_surface`]) are the spec's algorithms. [`CprDecoder`] is the per-aircraft state the
@@ -58,7 +58,7 @@ pub fn nl(lat_deg: f64) -> u32 {
     (n as u32).clamp(1, 59)
 }
 
-/// The angular span the zones divide: 360° airborne, 90° surface (DO-260B A.1.7.2, A.1.7.3).
+/// The angular span the zones divide: 360° airborne, 90° surface (DO-260B A.1.7).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum Span {
     Airborne,
@@ -89,14 +89,20 @@ fn parity_index(odd: bool) -> u32 {
     u32::from(odd)
 }
 
-/// Dlat_i = span / (4·NZ − i) (A.1.7.3 b; 360° airborne, 90° surface).
+/// Dlat_i = span / (4·NZ − i) (DO-260B A.1.7 encoding; 360° airborne, 90° surface).
 fn dlat(span: Span, odd: bool) -> f64 {
     span.deg() / (4.0 * NZ - f64::from(parity_index(odd)))
 }
 
-/// Dlon_i = span / max(NL(lat) − i, 1) (A.1.7.3 d).
+/// Dlon_i = span / max(NL(lat) − i, 1) (DO-260B A.1.7 encoding).
 fn dlon(span: Span, lat_deg: f64, odd: bool) -> f64 {
     span.deg() / f64::from(nl(lat_deg).saturating_sub(parity_index(odd)).max(1))
+}
+
+/// A usable reference: finite, latitude within ±90°, longitude within ±360° (so that the zone
+/// arithmetic stays exact; any longitude convention, [-180, 180) or [0, 360), works).
+fn reference_is_valid(lat_deg: f64, lon_deg: f64) -> bool {
+    lat_deg.is_finite() && lon_deg.is_finite() && lat_deg.abs() <= 90.0 && lon_deg.abs() <= 360.0
 }
 
 /// YZ/2^17 or XZ/2^17, `None` for a value a 17-bit field cannot hold.
@@ -112,15 +118,16 @@ pub enum RejectReason {
     /// A non-finite time, or a time before the aircraft's last accepted position.
     BadTime,
     /// The two latitudes of a pair lie in different NL zones: the aircraft crossed a zone
-    /// boundary between the two reports and the longitude would be wrong (A.1.7.7 c).
+    /// boundary between the two reports and the longitude would be wrong (A.1.7.7).
     ZoneMismatch,
-    /// The decoded latitude (or the reference's) is outside ±90°.
+    /// The decoded latitude is outside ±90°, or the reference is unusable (non-finite,
+    /// latitude outside ±90°, longitude outside ±360°).
     LatitudeOutOfRange,
     /// The position implies a speed above the configured maximum since the last accepted one.
     ImpossibleSpeed,
 }
 
-/// The latitude of each frame of a pair (A.1.7.7 a-b; for the surface, A.1.7.8 a-b with the
+/// The latitude of each frame of a pair (A.1.7.7; for the surface, A.1.7.8, with the
 /// northern-hemisphere solution in [0°, 90°)).
 fn pair_latitudes(even: Cpr, odd: Cpr, span: Span) -> Result<(f64, f64), RejectReason> {
     if even.odd || !odd.odd {
@@ -138,7 +145,7 @@ fn pair_latitudes(even: Cpr, odd: Cpr, span: Span) -> Result<(f64, f64), RejectR
     Ok((rlat0, rlat1))
 }
 
-/// The longitude of the latest frame of a pair, in [0°, span) (A.1.7.7 d-e, A.1.7.8 d-e).
+/// The longitude of the latest frame of a pair, in [0°, span) (A.1.7.7, A.1.7.8).
 /// `lat_deg` is the latest frame's latitude; both latitudes have the same NL (checked).
 fn pair_longitude(
     even: Cpr,
@@ -167,7 +174,7 @@ fn global_airborne_checked(
     latest_is_odd: bool,
 ) -> Result<(f64, f64), RejectReason> {
     let (mut rlat0, mut rlat1) = pair_latitudes(even, odd, Span::Airborne)?;
-    // Southern latitudes come out in [270°, 360°) (A.1.7.7 b).
+    // Southern latitudes come out in [270°, 360°) (A.1.7.7).
     if rlat0 >= 270.0 {
         rlat0 -= 360.0;
     }
@@ -191,7 +198,7 @@ fn global_airborne_checked(
 /// [-180, 180). `None` when the flags are not one even and one odd, a field is ≥ 2^17, the
 /// latitude is out of range, or the two latitudes have different NL (the aircraft crossed
 /// a longitude-zone boundary between the frames: no valid longitude, wait for another pair).
-/// The caller ensures the two frames are close in time (10 s, A.1.7.7 note).
+/// The caller ensures the two frames are close in time (10 s, see [`CprConfig::pair_window_s`]).
 pub fn global_airborne(even: Cpr, odd: Cpr, latest_is_odd: bool) -> Option<(f64, f64)> {
     global_airborne_checked(even, odd, latest_is_odd).ok()
 }
@@ -203,12 +210,12 @@ fn global_surface_checked(
     ref_lat_deg: f64,
     ref_lon_deg: f64,
 ) -> Result<(f64, f64), RejectReason> {
-    if !ref_lat_deg.is_finite() || !ref_lon_deg.is_finite() || ref_lat_deg.abs() > 90.0 {
+    if !reference_is_valid(ref_lat_deg, ref_lon_deg) {
         return Err(RejectReason::LatitudeOutOfRange);
     }
     let (rlat0, rlat1) = pair_latitudes(even, odd, Span::Surface)?;
     // Each latitude is known modulo 90°: the northern solution in [0°, 90°) or the southern
-    // one 90° below; the reference picks the hemisphere (A.1.7.8 b).
+    // one 90° below; the reference picks the hemisphere (A.1.7.8).
     let latest = if latest_is_odd { rlat1 } else { rlat0 };
     let shift = if (latest - 90.0 - ref_lat_deg).abs() < (latest - ref_lat_deg).abs() {
         -90.0
@@ -220,7 +227,7 @@ fn global_surface_checked(
         return Err(RejectReason::ZoneMismatch);
     }
     let lon_quadrant = pair_longitude(even, odd, latest_is_odd, lat, Span::Surface)?;
-    // Four longitudes 90° apart; the one nearest the reference (A.1.7.8 e).
+    // Four longitudes 90° apart; the one nearest the reference (A.1.7.8).
     let mut best_lon = wrap_lon(lon_quadrant);
     let mut best_dist = wrap_lon(best_lon - ref_lon_deg).abs();
     for k in 1..4 {
@@ -249,13 +256,13 @@ pub fn global_surface(
     global_surface_checked(even, odd, latest_is_odd, ref_lat_deg, ref_lon_deg).ok()
 }
 
-/// Locally unambiguous decoding of one frame against a reference (A.1.7.5 / A.1.7.6):
+/// Locally unambiguous decoding of one frame against a reference (A.1.7.5):
 /// j = floor(ref/Dlat) + floor(1/2 + MOD(ref, Dlat)/Dlat − YZ/2^17), lat = Dlat·(j + YZ/2^17),
 /// and likewise for the longitude with Dlon(lat).
 fn local(cpr: Cpr, ref_lat_deg: f64, ref_lon_deg: f64, span: Span) -> Option<(f64, f64)> {
     let yz = fraction(cpr.lat)?;
     let xz = fraction(cpr.lon)?;
-    if !ref_lat_deg.is_finite() || !ref_lon_deg.is_finite() || ref_lat_deg.abs() > 90.0 {
+    if !reference_is_valid(ref_lat_deg, ref_lon_deg) {
         return None;
     }
     let dlat = dlat(span, cpr.odd);
@@ -280,7 +287,7 @@ pub fn local_airborne(cpr: Cpr, ref_lat_deg: f64, ref_lon_deg: f64) -> Option<(f
     local(cpr, ref_lat_deg, ref_lon_deg, Span::Airborne)
 }
 
-/// Locally unambiguous surface decoding (DO-260B A.1.7.6): the zones span 90°, so the
+/// Locally unambiguous surface decoding (DO-260B A.1.7.5 with the surface Dlat/Dlon): the zones span 90°, so the
 /// reference must be within 45 NM; among the solutions 1.5° (lat) and 90°/NL (lon) apart it
 /// picks the one nearest the reference. `None` as for [`local_airborne`].
 pub fn local_surface(cpr: Cpr, ref_lat_deg: f64, ref_lon_deg: f64) -> Option<(f64, f64)> {
@@ -300,16 +307,17 @@ pub fn haversine_m(lat1_deg: f64, lon1_deg: f64, lat2_deg: f64, lon2_deg: f64) -
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct CprConfig {
     /// Longest time between the even and odd airborne frames of a global pair, s. DO-260B
-    /// A.1.7.7 allows 10 s: at 600 kt the aircraft moves ~3 km, well inside the tolerance of
+    /// pairs airborne frames over at most 10 s: at 600 kt the aircraft moves ~3 km, inside the tolerance of
     /// the zone index j.
     pub pair_window_s: f64,
-    /// The same for surface frames, s: 25 s (A.1.7.8; surface speeds are ten times lower).
+    /// The same for surface frames, s: 25 s, the usual limit for a moving surface target
+    /// (surface speeds are ten times lower, and surface zones four times smaller).
     pub surface_pair_window_s: f64,
     /// Highest plausible airborne speed, m/s: 700 m/s is about Mach 2 at altitude, so a
     /// position farther than that from the last one is a decoding error, not an aircraft.
     pub max_speed_mps: f64,
     /// Highest plausible speed between two surface fixes, m/s. The surface movement field
-    /// tops out at 175 kt (90 m/s, DO-260B §2.2.3.2.4.2); 100 m/s leaves room for the take-off roll.
+    /// tops out at 175 kt (90 m/s, DO-260B §2.2.3.2.4); 100 m/s leaves room for the take-off roll.
     pub max_surface_speed_mps: f64,
     /// Receiver (or airport) location, degrees: the reference for the first surface fix.
     pub receiver: Option<(f64, f64)>,
@@ -438,7 +446,7 @@ impl PairSlots {
 ///    remembered, so it is what exposes a wrong reference;
 /// 2. otherwise (or when the pair straddles an NL boundary) it is decoded locally against the
 ///    last accepted position while that is recent, and surface frames also against the
-///    receiver (A.1.7.5 / A.1.7.6);
+///    receiver (A.1.7.5);
 /// 3. every candidate is checked against the last accepted position: farther than
 ///    speed × dt + slack is rejected; after `rejections_before_reset` consecutive rejections
 ///    the last position is forgotten and the next global decode starts afresh.
@@ -726,6 +734,10 @@ mod tests {
         assert_eq!(local_airborne(bad, 52.0, 4.0), None);
         assert_eq!(local_surface(bad, 52.0, 4.0), None);
         assert_eq!(local_airborne(good, f64::NAN, 4.0), None);
+        assert_eq!(local_airborne(good, 52.0, 1e300), None);
+        let even0 = Cpr { odd: false, ..good };
+        assert!(global_surface(even0, good, true, 52.0, 4.0).is_some());
+        assert_eq!(global_surface(even0, good, true, 52.0, -361.0), None);
         assert_eq!(global_surface(bad, good, true, 52.0, 4.0), None);
         let mut dec = CprDecoder::new(CprConfig::default());
         assert_eq!(

@@ -108,6 +108,26 @@ impl MotionModel<6> for CvModel {
         }
         q
     }
+
+    /// The same step as the generic `x ← F x, P ← F P Fᵀ + Q`, in closed form: with
+    /// P = [[A, B], [Bᵀ, C]] (position, cross, velocity blocks) and F = [[I, T I], [0, I]],
+    /// F P Fᵀ = [[A + T(B + Bᵀ) + T² C, B + T C], [Bᵀ + T C, C]]. A third of the flops of two
+    /// 6x6 products; tested equal to the generic form.
+    fn predict(&self, x: &mut State6, p: &mut Matrix6, dt_s: f64) {
+        let v = x.fixed_rows::<3>(3).into_owned();
+        let mut pos = x.fixed_rows_mut::<3>(0);
+        pos += v * dt_s;
+        let a = p.fixed_view::<3, 3>(0, 0).into_owned();
+        let b = p.fixed_view::<3, 3>(0, 3).into_owned();
+        let c = p.fixed_view::<3, 3>(3, 3).into_owned();
+        let b_new = b + c * dt_s;
+        let a_new = a + (b + b.transpose()) * dt_s + c * (dt_s * dt_s);
+        p.fixed_view_mut::<3, 3>(0, 0).copy_from(&a_new);
+        p.fixed_view_mut::<3, 3>(0, 3).copy_from(&b_new);
+        p.fixed_view_mut::<3, 3>(3, 0).copy_from(&b_new.transpose());
+        *p += self.q(dt_s);
+        *p = kalman::symmetrise(p);
+    }
 }
 
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -418,6 +438,27 @@ mod tests {
         }
     }
 
+    #[test]
+    fn closed_form_prediction_equals_the_generic_step() {
+        let model = CvModel {
+            q_h_m2ps3: 0.25,
+            q_v_m2ps3: 0.09,
+        };
+        let mut rng = StdRng::seed_from_u64(3);
+        for dt in [0.0, 0.05, 1.0, 17.0] {
+            // A random symmetric positive definite P = L Lᵀ + I and a random state.
+            let l = Matrix6::from_fn(|_, _| rng.gen_range(-10.0..10.0));
+            let p0 = l * l.transpose() + Matrix6::identity();
+            let x0 = State6::from_fn(|_, _| rng.gen_range(-1e4..1e4));
+            let (mut x1, mut p1) = (x0, p0);
+            model.predict(&mut x1, &mut p1, dt);
+            let (mut x2, mut p2) = (x0, p0);
+            kalman::predict(&mut x2, &mut p2, &model.f(dt), &model.q(dt));
+            assert!((x1 - x2).norm() <= 1e-12 * x2.norm(), "x at {dt}");
+            assert!((p1 - p2).norm() <= 1e-12 * p2.norm(), "P at {dt}");
+        }
+    }
+
     /// Straight-line truth with ADS-B-like noise, position and velocity reports alternating
     /// at irregular 0.4-0.6 s intervals (as airborne position and velocity messages do).
     #[test]
@@ -556,9 +597,13 @@ mod tests {
             kf.update(&m).unwrap();
             let p = kf.track.unwrap().p;
             assert_eq!(p, p.transpose(), "asymmetric at step {step}");
-            let eig = SymmetricEigen::new(p).eigenvalues.min();
-            assert!(eig > 0.0, "eigenvalue {eig} at step {step}");
-            min_eig = min_eig.min(eig);
+            assert!(
+                Cholesky::new(p).is_some(),
+                "not positive definite at step {step}"
+            );
+            if step % 50 == 0 {
+                min_eig = min_eig.min(SymmetricEigen::new(p).eigenvalues.min());
+            }
         }
         assert_eq!(kf.reinitialisations(), 0);
         assert!(min_eig > 0.0);

@@ -232,6 +232,7 @@ mod tests {
             let back = frame.to_enu(lat2, lon2, h2);
             worst_m = worst_m.max((back - enu).norm());
         }
+        eprintln!("geo round trip: worst {worst_m:.3e} m over 2000 random points");
         assert!(worst_m < 1e-3, "worst round trip {worst_m} m");
     }
 

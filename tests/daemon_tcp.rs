@@ -83,8 +83,8 @@ async fn beast_feed_reconnects_after_a_cut_mid_frame() {
     assert_eq!(feed["disconnects"], 1, "{feed}");
     assert_eq!(feed["connected"], true, "{feed}");
     // The 5 bytes of the cut frame are counted as a truncated tail, nothing else is lost.
-    assert_eq!(feed["parser"]["truncated_tail_bytes"], 5, "{feed}");
-    assert_eq!(feed["parser"]["garbage_bytes"], 0, "{feed}");
+    assert_eq!(feed["parse"]["truncated_tail_bytes"], 5, "{feed}");
+    assert_eq!(feed["parse"]["garbage_bytes"], 0, "{feed}");
 
     let (code, health) = get_json(d.addr, "/healthz").await;
     assert_eq!(code, 200, "{health}");

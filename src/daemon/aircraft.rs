@@ -6,7 +6,7 @@
 
 use super::registry::{Registry, TrackState};
 use super::stats::Stats;
-use crate::decode::cpr::{CprConfig, CprDecoder, PositionFix};
+use crate::decode::cpr::{CprConfig, CprDecoder, PositionFix, RejectReason};
 use crate::decode::{AltitudeSource, Callsign, Decoded, Icao, Message, Velocity};
 use crate::track::geo::LocalFrame;
 use crate::track::{Measurement, Observed, TrackError, Tracker, UNMEASURED_VARIANCE};
@@ -247,7 +247,7 @@ impl Aircraft {
                 self.positions_rejected += 1;
                 stats
                     .positions_rejected
-                    .get_or_create(&vec![("reason", reason.label().to_string())])
+                    .get_or_create(&vec![("reason", reject_label(reason).to_string())])
                     .inc();
                 return None;
             }
@@ -366,6 +366,17 @@ impl Aircraft {
             pos_cov_enu_m2: pos_cov,
             vel_cov_enu_m2ps2: vel_cov,
         })
+    }
+}
+
+/// The stats label of a refused position.
+fn reject_label(r: RejectReason) -> &'static str {
+    match r {
+        RejectReason::InvalidCpr => "invalid_cpr",
+        RejectReason::BadTime => "bad_time",
+        RejectReason::ZoneMismatch => "zone_mismatch",
+        RejectReason::LatitudeOutOfRange => "latitude_out_of_range",
+        RejectReason::ImpossibleSpeed => "impossible_speed",
     }
 }
 

@@ -59,7 +59,7 @@ pub struct RunOptions {
 #[derive(Debug, thiserror::Error)]
 pub enum DaemonError {
     #[error("replay: {0}")]
-    Replay(#[from] crate::feed::replay::FeedError),
+    Replay(#[from] crate::feed::FeedError),
     #[error("{0}: {1}")]
     Io(String, std::io::Error),
     #[error("a daemon task failed: {0}")]
@@ -85,8 +85,8 @@ pub struct Shared {
 /// Builds the tracker `cfg.algorithm` names (validated at config load).
 pub fn build_tracker(cfg: &TrackerConfig) -> Box<dyn Tracker> {
     Box::new(CvKalman::new(CvParams {
-        q_horizontal: cfg.cv_q_horizontal,
-        q_vertical: cfg.cv_q_vertical,
+        q_h_m2ps3: cfg.cv_q_horizontal,
+        q_v_m2ps3: cfg.cv_q_vertical,
         max_gap_s: cfg.max_gap_s,
         ..CvParams::default()
     }))
@@ -170,7 +170,7 @@ pub async fn run(
     match &opts.source {
         Source::Feeds(feeds) => {
             for f in feeds {
-                let status = Arc::new(FeedStatus::new(&f.name));
+                let status = Arc::new(FeedStatus::new(f.name.as_str()));
                 shared.stats.add_feed(status.clone());
                 feed_tasks.spawn(crate::feed::tcp::run_client(
                     TcpFeed {

@@ -65,7 +65,7 @@ pub fn run_replay(
     tx: &mpsc::Sender<FrameBatch>,
     progress: &ReplayProgress,
     shutdown: &CancellationToken,
-) -> Result<crate::feed::ParseStats, crate::feed::replay::FeedError> {
+) -> Result<crate::feed::ParseStats, crate::feed::FeedError> {
     let mut offset_s = 0.0;
     let start_wall = Instant::now();
     let mut start_feed: Option<f64> = None;
@@ -79,8 +79,8 @@ pub fn run_replay(
     loop {
         let mut reader = match &replay.data {
             ReplayData::File(p) => FileReader::open(p, replay.format, replay.nominal_rate_hz)?,
-            ReplayData::Embedded { bytes, .. } => {
-                FileReader::from_bytes(bytes, replay.format, replay.nominal_rate_hz)?
+            ReplayData::Embedded { bytes, name } => {
+                FileReader::from_bytes(bytes, name, replay.format, replay.nominal_rate_hz)?
             }
         };
         let mut first_in_pass: Option<f64> = None;

@@ -131,7 +131,7 @@ impl Stats {
                     .inc_by(a - b);
             }
         }
-        for (reason, a, b) in now.skip_counts().into_iter().zip(before.skip_counts()).map(|((r, a), (_, b))| (r, a, b)) {
+        for ((reason, a), (_, b)) in skip_counts(now).into_iter().zip(skip_counts(before)) {
             if a > b {
                 self.frames_skipped
                     .get_or_create(&vec![("reason", reason.to_string())])
@@ -216,7 +216,7 @@ impl Stats {
             frames: self.frames_in.get(),
             frames_by_df: by_df,
             frames_by_type_code: by_tc,
-            frames_skipped: read(&self.frames_skipped, "reason", DecodeStats::SKIP_REASONS),
+            frames_skipped: read(&self.frames_skipped, "reason", SKIP_REASONS),
             crc_fixed: self.crc_fixed.get(),
             positions_accepted: self.positions_accepted.get(),
             positions_rejected: read(&self.positions_rejected, "reason", POSITION_REJECT_REASONS),
@@ -232,8 +232,36 @@ impl Stats {
     }
 }
 
+/// Reasons under which the decoder's skips are counted (see [`crate::decode::Skip`]).
+pub const SKIP_REASONS: &[&str] = &[
+    "mode_ac",
+    "wrong_length",
+    "bad_crc",
+    "unknown_address",
+    "unsupported_df",
+    "unsupported_cf",
+];
+
+/// The decoder's skip counters, labelled as [`SKIP_REASONS`].
+fn skip_counts(s: &DecodeStats) -> [(&'static str, u64); 6] {
+    [
+        ("mode_ac", s.mode_ac),
+        ("wrong_length", s.wrong_length),
+        ("bad_crc", s.crc_rejected),
+        ("unknown_address", s.unknown_address),
+        ("unsupported_df", s.unsupported_df),
+        ("unsupported_cf", s.unsupported_cf),
+    ]
+}
+
 /// Reasons under which the aircraft tasks count refused positions.
-pub const POSITION_REJECT_REASONS: &[&str] = &["implausible", "nl_mismatch", "no_reference", "invalid", "no_frame"];
+pub const POSITION_REJECT_REASONS: &[&str] = &[
+    "invalid_cpr",
+    "bad_time",
+    "zone_mismatch",
+    "latitude_out_of_range",
+    "impossible_speed",
+];
 /// Reasons under which tracker errors are counted.
 pub const TRACK_ERROR_REASONS: &[&str] = &["not_positive_definite", "out_of_order", "non_finite"];
 

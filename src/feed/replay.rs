@@ -17,7 +17,7 @@ pub const CHUNK_BYTES: usize = 64 * 1024;
 /// A recording opened for reading, frame batch by frame batch.
 pub struct FileReader {
     path: PathBuf,
-    file: File,
+    file: Box<dyn Read + Send>,
     format: Format,
     parser: Box<dyn FrameParser>,
     /// Bytes read but not consumed yet: an incomplete frame or line, and (right after
@@ -41,14 +41,45 @@ impl FileReader {
             path: path.clone(),
             source,
         };
-        let mut file = File::open(&path).map_err(io_err)?;
+        let file = File::open(&path).map_err(io_err)?;
         let total_bytes = file.metadata().map_err(io_err)?.len();
+        Self::from_reader(Box::new(file), path, total_bytes, format, nominal_rate_hz)
+    }
+
+    /// A recording held in memory (the daemon's embedded default); `name` stands for the path
+    /// in messages.
+    pub fn from_bytes(
+        bytes: &'static [u8],
+        name: &str,
+        format: Option<Format>,
+        nominal_rate_hz: f64,
+    ) -> Result<Self, FeedError> {
+        Self::from_reader(
+            Box::new(bytes),
+            PathBuf::from(name),
+            bytes.len() as u64,
+            format,
+            nominal_rate_hz,
+        )
+    }
+
+    fn from_reader(
+        mut file: Box<dyn Read + Send>,
+        path: PathBuf,
+        total_bytes: u64,
+        format: Option<Format>,
+        nominal_rate_hz: f64,
+    ) -> Result<Self, FeedError> {
+        let io_err = |source| FeedError::Io {
+            path: path.clone(),
+            source,
+        };
         let mut pending = Vec::with_capacity(CHUNK_BYTES + DETECT_HEAD_BYTES);
         let format = match format {
             Some(format) => format,
             None => {
                 pending.resize(DETECT_HEAD_BYTES, 0);
-                let n = read_full(&mut file, &mut pending).map_err(io_err)?;
+                let n = read_full(file.as_mut(), &mut pending).map_err(io_err)?;
                 pending.truncate(n);
                 detect(&pending).ok_or_else(|| FeedError::UnknownFormat { path: path.clone() })?
             }
@@ -80,7 +111,7 @@ impl FileReader {
         let filled = self.pending.len();
         self.pending.resize(filled + CHUNK_BYTES, 0);
         let n = match read_full(
-            &mut self.file,
+            self.file.as_mut(),
             self.pending.get_mut(filled..).unwrap_or(&mut []),
         ) {
             Ok(n) => n,
@@ -130,7 +161,7 @@ impl FileReader {
 }
 
 /// Reads until `buf` is full or the file ends; returns the bytes read.
-fn read_full(file: &mut File, buf: &mut [u8]) -> std::io::Result<usize> {
+fn read_full(file: &mut dyn Read, buf: &mut [u8]) -> std::io::Result<usize> {
     let mut filled = 0;
     while let Some(rest) = buf.get_mut(filled..) {
         if rest.is_empty() {

@@ -14,7 +14,7 @@
 //! (they carry no Mode S reply). Anything else is skipped and counted, and parsing
 //! resynchronises on the next 0x1a that starts a frame, as readsb's `readBeast` does.
 
-use super::{FeedClock, FrameParser, ParseStats, RawFrame};
+use super::{FeedClock, FrameParser, ParseStats, RawFrame, MAX_FRAME_BYTES};
 
 /// The frame marker, and the escape for a 0x1a data byte.
 const ESC: u8 = 0x1a;
@@ -64,13 +64,15 @@ enum Body {
     Broken(usize),
 }
 
-/// Copies `want` unescaped bytes from `src` into `dst`.
+/// Copies `want` unescaped bytes from `src` into `dst` (bytes of `dst` past `want` may be
+/// overwritten with whatever follows).
 #[inline]
 fn unescape(src: &[u8], want: usize, dst: &mut [u8; MAX_BODY_BYTES]) -> Body {
-    // Fast path: no escape in the first `want` bytes (the vast majority of frames).
-    if let (Some(head), Some(slot)) = (src.get(..want), dst.get_mut(..want)) {
-        if !head.contains(&ESC) {
-            slot.copy_from_slice(head);
+    // Fast path, taken by nearly every frame: copy a fixed-size window (plain moves, no
+    // memcpy call) and check the `want` bytes that matter for an escape.
+    if let (Some(window), Some(head)) = (src.first_chunk::<MAX_BODY_BYTES>(), src.get(..want)) {
+        if !head.iter().fold(false, |seen, &b| seen | (b == ESC)) {
+            *dst = *window;
             return Body::Complete(want);
         }
     }
@@ -167,8 +169,18 @@ impl BeastParser {
         let [c0, c1, c2, c3, c4, c5, signal, ..] = *body;
         let ticks = u64::from_be_bytes([0, 0, c0, c1, c2, c3, c4, c5]);
         let time_s = self.clock.at_ticks(ticks);
-        let bytes = body.get(HEADER_BYTES..HEADER_BYTES + data).unwrap_or(&[]);
-        if let Some(frame) = RawFrame::new(time_s, bytes, Some(signal)) {
+        // The last 14 bytes of the body: the data, and for shorter frames whatever followed
+        // (ignored by `from_padded`).
+        let Some(tail) = body.last_chunk::<MAX_FRAME_BYTES>() else {
+            return;
+        };
+        let mut buf = [0u8; MAX_FRAME_BYTES];
+        match data {
+            2 => buf[..2].copy_from_slice(&tail[..2]),
+            7 => buf[..7].copy_from_slice(&tail[..7]),
+            _ => buf = *tail,
+        }
+        if let Some(frame) = RawFrame::from_padded(time_s, buf, data, Some(signal)) {
             out.push(frame);
         }
     }

@@ -136,7 +136,12 @@ impl TextParser {
                     .iter()
                     .try_fold(0u64, |acc, &c| Some(acc << 4 | u64::from(nibble(c)?)))?;
                 let (bytes, len) = frame_from_hex(frame_hex)?;
-                let time_s = self.clock.at_ticks(ticks);
+                // Mode A/C stamps do not move the clock (see `beast::BeastParser::emit`).
+                let time_s = if len == 2 {
+                    self.clock.last_s()
+                } else {
+                    self.clock.at_ticks(ticks)
+                };
                 RawFrame::new(time_s, bytes.get(..len)?, None)
             }
             _ => None,

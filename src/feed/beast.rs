@@ -171,8 +171,9 @@ impl BeastParser {
         let [c0, c1, c2, c3, c4, c5, signal, ..] = *body;
         let ticks = u64::from_be_bytes([0, 0, c0, c1, c2, c3, c4, c5]);
         // Mode A/C replies carry no address and are never tracked, and dump1090 may hold
-        // them for up to a minute, so mlat-client keeps their stamps out of its clock
-        // (`modes_reader.c`): so do we. They get the last time.
+        // them for up to a minute before sending them (mlat-client keeps their stamps out of
+        // its clock, `modes_reader.c`): one would count as a receiver restart. They get the
+        // last time and leave the clock alone.
         let time_s = if data == 2 {
             self.clock.last_s()
         } else {
@@ -243,10 +244,10 @@ mod tests {
         assert_eq!(out[0].time_s, 436_207_642.0 / 12e6);
         assert_eq!(out[1].bytes(), &[0x5d, 0x1a, 0x40, 0xd6, 0x1a, 0x00, 0x01]);
         assert_eq!(out[1].signal, Some(0x20));
-        // Its counter (27 ticks) is 36 s behind the first frame's: a late frame, given the
-        // last time without a rebase.
+        // Its counter (27 ticks) is 36 s behind the first frame's: a new time base, and the
+        // frame keeps the last time.
         assert_eq!(out[1].time_s, out[0].time_s);
-        assert_eq!(p.stats().clock_resets, 0);
+        assert_eq!(p.stats().clock_resets, 1);
         assert_eq!(p.stats().frames, 2);
         assert_eq!(p.stats().garbage_bytes, 0);
     }

@@ -22,11 +22,13 @@ pub const COUNTER_MODULUS: u64 = 1 << 48;
 pub const MAX_FORWARD_STEP_S: f64 = 3600.0;
 
 /// A backward step up to this long is one late frame, not a new time base: the frame gets
-/// the last time and the time base stays. dump1090 can hold a message for up to 60 s before
-/// forwarding it, and mlat-client (`modes_reader.c`, `timestamp_update`) ignores backward
-/// moves under 90 s for that reason; we use the same bound. Rebasing on such a frame instead
-/// would push every later frame forward by the frame's lateness.
-pub const MAX_LATE_FRAME_S: f64 = 90.0;
+/// the last time and the time base stays (rebasing on it would push every later frame
+/// forward by its lateness). A receiver that decodes several sample blocks in parallel can
+/// emit frames out of order by about a block (tens of ms); one second covers that with
+/// margin, while a recording replayed in a loop or a receiver restarted after more than a
+/// second steps back further and rebases, so time goes on. (dump1090's late frames, up to a
+/// minute, are Mode A/C replies, which never reach the clock: see `BeastParser`.)
+pub const MAX_LATE_FRAME_S: f64 = 1.0;
 
 /// [`MAX_FORWARD_STEP_S`] in counter ticks.
 const MAX_FORWARD_STEP_TICKS: u64 = (MAX_FORWARD_STEP_S * COUNTER_HZ) as u64;
@@ -176,7 +178,7 @@ mod tests {
     fn receiver_restart_continues_from_last_time() {
         let mut c = FeedClock::new();
         assert_eq!(c.at_ticks(1_200_000_000), 100.0);
-        // The receiver restarts: its counter falls back to 1 s, 99 s back.
+        // The receiver restarts: its counter falls back to 1 s.
         assert_eq!(c.at_ticks(12_000_000), 100.0);
         // Half a second of counter later is half a second of feed time later.
         assert_eq!(c.at_ticks(18_000_000), 100.5);
@@ -187,8 +189,8 @@ mod tests {
     fn late_frame_keeps_the_time_base() {
         let mut c = FeedClock::new();
         assert_eq!(c.at_ticks(1_200_000_000), 100.0);
-        // A frame stamped 60 s earlier (dump1090 held it): last time, no rebase.
-        assert_eq!(c.at_ticks(480_000_000), 100.0);
+        // A frame stamped 0.5 s earlier: last time, no rebase.
+        assert_eq!(c.at_ticks(1_194_000_000), 100.0);
         // The next frame is timed from the unchanged base.
         assert_eq!(c.at_ticks(1_212_000_000), 101.0);
         assert_eq!(c.resets(), 0);
@@ -237,7 +239,7 @@ mod tests {
         assert_eq!(c.at_seconds(1_000.0), 1_000.0);
         assert_eq!(c.at_seconds(1_001.0), 1_001.0);
         // A late line: last time, same base.
-        assert_eq!(c.at_seconds(999.0), 1_001.0);
+        assert_eq!(c.at_seconds(1_000.25), 1_001.0);
         assert_eq!(c.at_seconds(1_001.5), 1_001.5);
         // Far back: rebase.
         assert_eq!(c.at_seconds(500.0), 1_001.5);

@@ -7,7 +7,9 @@ mod feed_common;
 
 use adsb_tracker::feed::beast::BeastParser;
 use adsb_tracker::feed::{FrameParser, ParseStats, RawFrame};
-use feed_common::{beast_reference, parse_pieces, random_pieces, read_fixture, RefFrame};
+use feed_common::{
+    beast_encode, beast_reference, parse_pieces, random_pieces, read_fixture, RefFrame,
+};
 use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
 
@@ -149,4 +151,59 @@ fn parser_is_reusable_after_finish() {
         (mid - want[120].start) as u64
     );
     assert_eq!(p.stats().garbage_bytes, (want[120].end - mid) as u64);
+}
+
+#[test]
+fn recording_replayed_twice_keeps_time_running_forward() {
+    let (wire, want) = recording();
+    let twice = [wire.clone(), wire].concat();
+    let mut p = BeastParser::new();
+    let got = parse_pieces(&mut p, twice.chunks(500));
+    assert_eq!(got.len(), 478);
+    assert_frames(&got[..239], &want);
+    // The counter steps back 24 s at the seam: one rebase, and the second copy continues
+    // from the last time with the recording's own spacing.
+    assert_eq!(p.stats().clock_resets, 1);
+    let last_s = want[238].counter as f64 / 12e6;
+    for (g, w) in got[239..].iter().zip(&want) {
+        let expected_s = last_s + (w.counter - want[0].counter) as f64 / 12e6;
+        assert!(
+            (g.time_s - expected_s).abs() < 1e-9,
+            "{} vs {expected_s}",
+            g.time_s
+        );
+        assert_eq!(g.bytes(), &w.data[..]);
+    }
+    assert!(got.windows(2).all(|w| w[0].time_s <= w[1].time_s));
+}
+
+#[test]
+fn counter_wrap_keeps_elapsed_time() {
+    let (_, want) = recording();
+    // Re-stamp the recording so that the 48-bit counter wraps just before frame 100 (which
+    // lands on 1000 ticks, not 0: a zero counter means "no time").
+    let wrap_at = want[100].counter;
+    let start = (1u64 << 48) - (wrap_at - want[0].counter) + 1000;
+    let wire: Vec<u8> = want
+        .iter()
+        .flat_map(|f| {
+            let counter = (start + (f.counter - want[0].counter)) % (1 << 48);
+            beast_encode(counter, f.signal, &f.data)
+        })
+        .collect();
+    let mut p = BeastParser::new();
+    let got = parse_pieces(&mut p, wire.chunks(64));
+    assert_eq!(got.len(), 239);
+    assert_eq!(p.stats().clock_resets, 1);
+    let t0 = got[0].time_s;
+    assert_eq!(t0, start as f64 / 12e6);
+    for (g, w) in got.iter().zip(&want) {
+        let elapsed_s = (w.counter - want[0].counter) as f64 / 12e6;
+        // Relative to a time of 2^48 / 12e6 = 2.3e7 s, f64 resolves about 4e-9 s.
+        assert!(
+            (g.time_s - t0 - elapsed_s).abs() < 1e-7,
+            "{}",
+            g.time_s - t0 - elapsed_s
+        );
+    }
 }

@@ -10,11 +10,12 @@
 //! long, 112 bits); `counter` is the receiver's 48-bit 12 MHz clock, big-endian; `signal` is
 //! the RSSI byte. Every 0x1a inside counter, signal or data is sent twice, so a lone 0x1a
 //! followed by anything but 0x1a always starts a frame. Radarcape receivers also send type
-//! `'4'` status frames with a 14-byte body; they are skipped whole and counted as bad frames
-//! (they carry no Mode S reply). Anything else is skipped and counted, and parsing
+//! `'4'` (status: counter, signal, 14 bytes) and `'5'` (GPS position: 21 bytes) records
+//! (mlat-client `modes_reader.c`, `feed_beast`); they carry no Mode S reply and are skipped
+//! whole, counted as bad frames. Any other type is skipped and counted, and parsing
 //! resynchronises on the next 0x1a that starts a frame, as readsb's `readBeast` does.
 
-use super::{FeedClock, FrameParser, ParseStats, RawFrame};
+use super::{FeedClock, FrameParser, ParseStats, RawFrame, MAX_FRAME_BYTES};
 
 /// The frame marker, and the escape for a 0x1a data byte.
 const ESC: u8 = 0x1a;
@@ -22,7 +23,8 @@ const ESC: u8 = 0x1a;
 /// Counter (6 bytes) and signal (1 byte) precede the data.
 const HEADER_BYTES: usize = 7;
 
-/// Longest unescaped body: header plus a 14-byte long frame (or a `'4'` status body).
+/// Longest unescaped body: header plus a 14-byte long frame (and the size of both Radarcape
+/// records).
 const MAX_BODY_BYTES: usize = HEADER_BYTES + 14;
 
 /// What follows `0x1a type`, by type byte.
@@ -30,8 +32,8 @@ const MAX_BODY_BYTES: usize = HEADER_BYTES + 14;
 enum Kind {
     /// A Mode A/C or Mode S reply with this many data bytes.
     Frame(usize),
-    /// A Radarcape status frame: skipped whole.
-    Status,
+    /// A Radarcape status or position record: skipped whole.
+    Radarcape,
 }
 
 fn kind(type_byte: u8) -> Option<Kind> {
@@ -39,7 +41,7 @@ fn kind(type_byte: u8) -> Option<Kind> {
         b'1' => Some(Kind::Frame(2)),
         b'2' => Some(Kind::Frame(7)),
         b'3' => Some(Kind::Frame(14)),
-        b'4' => Some(Kind::Status),
+        b'4' | b'5' => Some(Kind::Radarcape),
         _ => None,
     }
 }
@@ -48,7 +50,7 @@ impl Kind {
     fn body_bytes(self) -> usize {
         match self {
             Self::Frame(data) => HEADER_BYTES + data,
-            Self::Status => MAX_BODY_BYTES,
+            Self::Radarcape => MAX_BODY_BYTES,
         }
     }
 }
@@ -64,13 +66,15 @@ enum Body {
     Broken(usize),
 }
 
-/// Copies `want` unescaped bytes from `src` into `dst`.
+/// Copies `want` unescaped bytes from `src` into `dst` (bytes of `dst` past `want` may be
+/// overwritten with whatever follows).
 #[inline]
 fn unescape(src: &[u8], want: usize, dst: &mut [u8; MAX_BODY_BYTES]) -> Body {
-    // Fast path: no escape in the first `want` bytes (the vast majority of frames).
-    if let (Some(head), Some(slot)) = (src.get(..want), dst.get_mut(..want)) {
-        if !head.contains(&ESC) {
-            slot.copy_from_slice(head);
+    // Fast path, taken by nearly every frame: copy a fixed-size window (plain moves, no
+    // memcpy call) and check the `want` bytes that matter for an escape.
+    if let (Some(window), Some(head)) = (src.first_chunk::<MAX_BODY_BYTES>(), src.get(..want)) {
+        if !head.iter().fold(false, |seen, &b| seen | (b == ESC)) {
+            *dst = *window;
             return Body::Complete(want);
         }
     }
@@ -166,9 +170,27 @@ impl BeastParser {
     fn emit(&mut self, body: &[u8; MAX_BODY_BYTES], data: usize, out: &mut Vec<RawFrame>) {
         let [c0, c1, c2, c3, c4, c5, signal, ..] = *body;
         let ticks = u64::from_be_bytes([0, 0, c0, c1, c2, c3, c4, c5]);
-        let time_s = self.clock.at_ticks(ticks);
-        let bytes = body.get(HEADER_BYTES..HEADER_BYTES + data).unwrap_or(&[]);
-        if let Some(frame) = RawFrame::new(time_s, bytes, Some(signal)) {
+        // Mode A/C replies carry no address and are never tracked, and dump1090 may hold
+        // them for up to a minute before sending them (mlat-client keeps their stamps out of
+        // its clock, `modes_reader.c`): one would count as a receiver restart. They get the
+        // last time and leave the clock alone.
+        let time_s = if data == 2 {
+            self.clock.last_s()
+        } else {
+            self.clock.at_ticks(ticks)
+        };
+        // The last 14 bytes of the body: the data, and for shorter frames whatever followed
+        // (ignored by `from_padded`).
+        let Some(tail) = body.last_chunk::<MAX_FRAME_BYTES>() else {
+            return;
+        };
+        let mut buf = [0u8; MAX_FRAME_BYTES];
+        match data {
+            2 => buf[..2].copy_from_slice(&tail[..2]),
+            7 => buf[..7].copy_from_slice(&tail[..7]),
+            _ => buf = *tail,
+        }
+        if let Some(frame) = RawFrame::from_padded(time_s, buf, data, Some(signal)) {
             out.push(frame);
         }
     }
@@ -222,8 +244,8 @@ mod tests {
         assert_eq!(out[0].time_s, 436_207_642.0 / 12e6);
         assert_eq!(out[1].bytes(), &[0x5d, 0x1a, 0x40, 0xd6, 0x1a, 0x00, 0x01]);
         assert_eq!(out[1].signal, Some(0x20));
-        // Its counter (27 ticks) steps back from the first frame's: the clock rebases and
-        // the frame keeps the last time.
+        // Its counter (27 ticks) is 36 s behind the first frame's: a new time base, and the
+        // frame keeps the last time.
         assert_eq!(out[1].time_s, out[0].time_s);
         assert_eq!(p.stats().clock_resets, 1);
         assert_eq!(p.stats().frames, 2);
@@ -231,17 +253,19 @@ mod tests {
     }
 
     #[test]
-    fn mode_ac_frame() {
-        // 12,000,000 ticks = 1 s; squawk-style 2-byte reply.
-        let wire = frame(b'1', &[0, 0, 0, 0xb7, 0x1b, 0x00, 0x55, 0x02, 0x40]);
+    fn mode_ac_frame_takes_the_last_time() {
+        // A short Mode S frame at 12,000,000 ticks = 1 s, then a 2-byte Mode A/C reply stamped
+        // 2 s, whose stamp does not move the clock.
+        let mut wire = frame(b'2', &[0, 0, 0, 0xb7, 0x1b, 0x00, 9, 1, 2, 3, 4, 5, 6, 7]);
+        wire.extend(frame(b'1', &[0, 0, 1, 0x6e, 0x36, 0x00, 0x55, 0x02, 0x40]));
         let mut p = BeastParser::new();
         let (out, used) = parse_all(&mut p, &wire);
-        assert_eq!(used, 11);
-        assert_eq!(out.len(), 1);
-        assert!(out[0].is_mode_ac());
-        assert_eq!(out[0].bytes(), &[0x02, 0x40]);
-        assert_eq!(out[0].time_s, 1.0);
-        assert_eq!(out[0].signal, Some(0x55));
+        assert_eq!(used, 16 + 11);
+        assert_eq!(out.len(), 2);
+        assert!(out[1].is_mode_ac());
+        assert_eq!(out[1].bytes(), &[0x02, 0x40]);
+        assert_eq!(out[1].signal, Some(0x55));
+        assert_eq!((out[0].time_s, out[1].time_s), (1.0, 1.0));
     }
 
     #[test]

@@ -7,7 +7,7 @@
 //! and restarts at zero when the receiver does. Text recordings carry unix seconds, which are
 //! monotonic in every fixture but nothing guarantees it. [`FeedClock`] turns either into feed
 //! seconds that continue from the last time whenever the source misbehaves, and counts each
-//! such rebase in [`ParseStats::clock_resets`](super::ParseStats::clock_resets).
+//! rebase in [`ParseStats::clock_resets`](super::ParseStats::clock_resets).
 
 /// Ticks per second of the Beast / AVR-`@` timestamp counter (12 MHz).
 pub const COUNTER_HZ: f64 = 12.0e6;
@@ -21,25 +21,48 @@ pub const COUNTER_MODULUS: u64 = 1 << 48;
 /// nothing, while believing a corrupted stamp would leave every later frame hours away.
 pub const MAX_FORWARD_STEP_S: f64 = 3600.0;
 
+/// A backward step up to this long is one late frame, not a new time base: the frame gets
+/// the last time and the time base stays (rebasing on it would push every later frame
+/// forward by its lateness). A receiver that decodes several sample blocks in parallel can
+/// emit frames out of order by about a block (tens of ms); one second covers that with
+/// margin, while a recording replayed in a loop or a receiver restarted after more than a
+/// second steps back further and rebases, so time goes on. (dump1090's late frames, up to a
+/// minute, are Mode A/C replies, which never reach the clock: see `BeastParser`.)
+pub const MAX_LATE_FRAME_S: f64 = 1.0;
+
 /// [`MAX_FORWARD_STEP_S`] in counter ticks.
 const MAX_FORWARD_STEP_TICKS: u64 = (MAX_FORWARD_STEP_S * COUNTER_HZ) as u64;
+
+/// [`MAX_LATE_FRAME_S`] in counter ticks.
+const MAX_LATE_FRAME_TICKS: u64 = (MAX_LATE_FRAME_S * COUNTER_HZ) as u64;
+
+/// readsb/mlat-client mark frames synthesised from multilateration results (and UAT) with
+/// the counter value `FF 00 "MLAT"` (+0..10): not a time (mlat-client
+/// `is_synthetic_timestamp`).
+const MAGIC_MLAT_TICKS: u64 = 0xFF00_4D4C_4154;
+
+/// True for counter values that carry no time: zero (an untimed source) or the MLAT marks.
+fn is_synthetic(ticks: u64) -> bool {
+    ticks == 0 || (MAGIC_MLAT_TICKS..=MAGIC_MLAT_TICKS + 10).contains(&ticks)
+}
 
 /// Maps a source's clock (12 MHz counter ticks or seconds) to monotonic feed seconds.
 ///
 /// As long as the source behaves, feed time is exactly the source's time (`ticks / 12e6`, or
-/// the timestamp itself). When it steps backwards, wraps, or jumps forward by more than
-/// [`MAX_FORWARD_STEP_S`], the clock rebases: that frame gets the last feed time (for a wrap,
-/// the last time plus the modular elapsed time) and later frames advance from there.
+/// the timestamp itself). A frame up to [`MAX_LATE_FRAME_S`] older than the latest gets the
+/// last feed time. A larger step back, a jump forward beyond [`MAX_FORWARD_STEP_S`], or a
+/// 48-bit wrap rebases the clock: that frame gets the last feed time (for a wrap, the last
+/// time plus the modular elapsed time) and later frames advance from there.
 #[derive(Clone, Debug, Default)]
 pub struct FeedClock {
-    /// Feed time of the last frame, in seconds; 0 before the first.
+    /// Feed time of the latest frame, in seconds; 0 before the first.
     last_s: f64,
     /// Counter value at the current time base and the feed time it maps to.
     base_ticks: u64,
     base_s: f64,
-    /// Last nonzero counter seen, if any.
+    /// Latest counter value seen (late frames do not lower it), if any.
     last_ticks: Option<u64>,
-    /// Offset added to source seconds, and the last source seconds seen.
+    /// Offset added to source seconds, and the latest source seconds seen.
     offset_s: f64,
     last_source_s: Option<f64>,
     resets: u64,
@@ -53,23 +76,24 @@ impl FeedClock {
 
     /// Feed seconds for a 48-bit 12 MHz counter value.
     ///
-    /// A zero counter means the source has no timestamps (readsb sends 0 for frames it did not
-    /// time, e.g. from an AVR input): the frame gets the last feed time.
+    /// A zero counter (readsb sends 0 for frames it did not time, e.g. from an AVR input) or
+    /// an MLAT mark is no time: the frame gets the last feed time.
     pub fn at_ticks(&mut self, ticks: u64) -> f64 {
         let ticks = ticks % COUNTER_MODULUS;
-        if ticks == 0 {
+        if is_synthetic(ticks) {
             return self.last_s;
         }
         if let Some(last) = self.last_ticks {
             if ticks < last {
                 let wrapped = ticks + (COUNTER_MODULUS - last);
-                let elapsed_s = if wrapped <= MAX_FORWARD_STEP_TICKS {
+                if wrapped <= MAX_FORWARD_STEP_TICKS {
                     // A genuine 48-bit wrap: keep the elapsed time exact.
-                    wrapped as f64 / COUNTER_HZ
+                    self.rebase_ticks(ticks, self.last_s + wrapped as f64 / COUNTER_HZ);
+                } else if last - ticks <= MAX_LATE_FRAME_TICKS {
+                    return self.last_s;
                 } else {
-                    0.0
-                };
-                self.rebase_ticks(ticks, self.last_s + elapsed_s);
+                    self.rebase_ticks(ticks, self.last_s);
+                }
             } else if ticks - last > MAX_FORWARD_STEP_TICKS {
                 self.rebase_ticks(ticks, self.last_s);
             }
@@ -81,14 +105,18 @@ impl FeedClock {
     }
 
     /// Feed seconds for a source timestamp in seconds (unix time from a recording, or the
-    /// nominal pacing of an untimed AVR stream). Non-finite input is the caller's to reject;
-    /// given one anyway, it yields the last time.
+    /// nominal pacing of an untimed AVR stream), by the rules of
+    /// [`at_ticks`](Self::at_ticks) without the wrap. Non-finite input is the caller's to
+    /// reject; given one anyway, it yields the last time.
     pub fn at_seconds(&mut self, source_s: f64) -> f64 {
         if !source_s.is_finite() {
             return self.last_s;
         }
         if let Some(last) = self.last_source_s {
             let step_s = source_s - last;
+            if (-MAX_LATE_FRAME_S..0.0).contains(&step_s) {
+                return self.last_s;
+            }
             if !(0.0..=MAX_FORWARD_STEP_S).contains(&step_s) {
                 self.offset_s = self.last_s - source_s;
                 self.resets += 1;
@@ -98,7 +126,7 @@ impl FeedClock {
         self.advance(source_s + self.offset_s)
     }
 
-    /// Feed time of the last frame (0 before the first).
+    /// Feed time of the latest frame (0 before the first).
     pub fn last_s(&self) -> f64 {
         self.last_s
     }
@@ -147,14 +175,35 @@ mod tests {
     }
 
     #[test]
-    fn backward_step_continues_from_last_time() {
+    fn receiver_restart_continues_from_last_time() {
         let mut c = FeedClock::new();
-        assert_eq!(c.at_ticks(120_000_000), 10.0);
+        assert_eq!(c.at_ticks(1_200_000_000), 100.0);
         // The receiver restarts: its counter falls back to 1 s.
-        assert_eq!(c.at_ticks(12_000_000), 10.0);
+        assert_eq!(c.at_ticks(12_000_000), 100.0);
         // Half a second of counter later is half a second of feed time later.
-        assert_eq!(c.at_ticks(18_000_000), 10.5);
+        assert_eq!(c.at_ticks(18_000_000), 100.5);
         assert_eq!(c.resets(), 1);
+    }
+
+    #[test]
+    fn late_frame_keeps_the_time_base() {
+        let mut c = FeedClock::new();
+        assert_eq!(c.at_ticks(1_200_000_000), 100.0);
+        // A frame stamped 0.5 s earlier: last time, no rebase.
+        assert_eq!(c.at_ticks(1_194_000_000), 100.0);
+        // The next frame is timed from the unchanged base.
+        assert_eq!(c.at_ticks(1_212_000_000), 101.0);
+        assert_eq!(c.resets(), 0);
+    }
+
+    #[test]
+    fn mlat_marks_are_not_times() {
+        let mut c = FeedClock::new();
+        assert_eq!(c.at_ticks(24_000_000), 2.0);
+        assert_eq!(c.at_ticks(0xFF00_4D4C_4154), 2.0);
+        assert_eq!(c.at_ticks(0xFF00_4D4C_4155), 2.0);
+        assert_eq!(c.at_ticks(36_000_000), 3.0);
+        assert_eq!(c.resets(), 0);
     }
 
     #[test]
@@ -189,11 +238,16 @@ mod tests {
         let mut c = FeedClock::new();
         assert_eq!(c.at_seconds(1_000.0), 1_000.0);
         assert_eq!(c.at_seconds(1_001.0), 1_001.0);
-        assert_eq!(c.at_seconds(999.0), 1_001.0);
-        assert_eq!(c.at_seconds(999.5), 1_001.5);
-        assert_eq!(c.at_seconds(f64::NAN), 1_001.5);
-        assert_eq!(c.at_seconds(1e12), 1_001.5);
-        assert_eq!(c.at_seconds(1e12 + 2.0), 1_003.5);
+        // A late line: last time, same base.
+        assert_eq!(c.at_seconds(1_000.25), 1_001.0);
+        assert_eq!(c.at_seconds(1_001.5), 1_001.5);
+        // Far back: rebase.
+        assert_eq!(c.at_seconds(500.0), 1_001.5);
+        assert_eq!(c.at_seconds(500.5), 1_002.0);
+        assert_eq!(c.at_seconds(f64::NAN), 1_002.0);
+        // Far forward: rebase.
+        assert_eq!(c.at_seconds(1e12), 1_002.0);
+        assert_eq!(c.at_seconds(1e12 + 2.0), 1_004.0);
         assert_eq!(c.resets(), 2);
     }
 }

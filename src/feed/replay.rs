@@ -185,6 +185,11 @@ mod tests {
     fn missing_file_and_unknown_format_are_errors() {
         let err = FileReader::open("/nonexistent/feed.avr", None, 1.0).err();
         assert!(matches!(err, Some(FeedError::Io { .. })), "{err:?}");
+        let text = err.map(|e| e.to_string()).unwrap_or_default();
+        assert!(
+            text.starts_with("cannot read /nonexistent/feed.avr: "),
+            "{text}"
+        );
 
         let path = std::env::temp_dir().join(format!("feed-unknown-{}.txt", std::process::id()));
         std::fs::write(&path, "hello\nworld\n").unwrap();

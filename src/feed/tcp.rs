@@ -189,7 +189,7 @@ pub async fn run_client_with(
     let feed: Arc<str> = Arc::from(cfg.name.as_str());
     let mut parser = parser_for(cfg.format, cfg.nominal_rate_hz);
     let mut backoff = timing.backoff_initial;
-    loop {
+    while !tx.is_closed() {
         let attempt = tokio::time::timeout(timing.connect_timeout, TcpStream::connect(&cfg.addr));
         let connected = tokio::select! {
             _ = shutdown.cancelled() => return,

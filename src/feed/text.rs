@@ -136,7 +136,12 @@ impl TextParser {
                     .iter()
                     .try_fold(0u64, |acc, &c| Some(acc << 4 | u64::from(nibble(c)?)))?;
                 let (bytes, len) = frame_from_hex(frame_hex)?;
-                let time_s = self.clock.at_ticks(ticks);
+                // Mode A/C stamps do not move the clock (see `beast::BeastParser::emit`).
+                let time_s = if len == 2 {
+                    self.clock.last_s()
+                } else {
+                    self.clock.at_ticks(ticks)
+                };
                 RawFrame::new(time_s, bytes.get(..len)?, None)
             }
             _ => None,
@@ -212,13 +217,37 @@ impl FrameParser for TextParser {
     }
 }
 
-fn nibble(c: u8) -> Option<u8> {
-    match c {
-        b'0'..=b'9' => Some(c - b'0'),
-        b'a'..=b'f' => Some(c - b'a' + 10),
-        b'A'..=b'F' => Some(c - b'A' + 10),
-        _ => None,
+/// Marks a byte that is not a hex digit in [`HEX_VALUE`] (high bit set: no digit has it).
+const NOT_HEX: u8 = 0xff;
+
+/// Value of each byte as a hex digit, or [`NOT_HEX`]. A table rather than a `match`: hex
+/// digits mix ranges at random, and the branches of a `match` mispredict on nearly every
+/// character (it took half the AVR parsing time).
+static HEX_VALUE: [u8; 256] = {
+    let mut table = [NOT_HEX; 256];
+    let mut i = 0;
+    while i < 10 {
+        table[b'0' as usize + i] = i as u8;
+        i += 1;
     }
+    let mut i = 0;
+    while i < 6 {
+        table[b'a' as usize + i] = 10 + i as u8;
+        table[b'A' as usize + i] = 10 + i as u8;
+        i += 1;
+    }
+    table
+};
+
+/// The digit's value, or [`NOT_HEX`].
+#[inline]
+fn hex_value(c: u8) -> u8 {
+    HEX_VALUE.get(usize::from(c)).copied().unwrap_or(NOT_HEX)
+}
+
+fn nibble(c: u8) -> Option<u8> {
+    let v = hex_value(c);
+    (v != NOT_HEX).then_some(v)
 }
 
 /// Decodes a frame's hex digits: 4 digits are Mode A/C (2 bytes); otherwise the DF in the
@@ -230,9 +259,16 @@ fn frame_from_hex(hex: &[u8]) -> Option<([u8; MAX_FRAME_BYTES], usize)> {
         return None;
     }
     let mut bytes = [0u8; MAX_FRAME_BYTES];
+    // Decode every pair, then reject once if any digit was not hex (no branch per digit).
+    let mut seen = 0u8;
     for (slot, pair) in bytes.iter_mut().zip(hex.chunks_exact(2)) {
         let [hi, lo] = *pair else { return None };
-        *slot = nibble(hi)? << 4 | nibble(lo)?;
+        let (hi, lo) = (hex_value(hi), hex_value(lo));
+        seen |= hi | lo;
+        *slot = hi << 4 | lo;
+    }
+    if seen > 0x0f {
+        return None;
     }
     let have = digits / 2;
     if have == 2 {

@@ -100,3 +100,24 @@ pub fn random_pieces<'a>(data: &'a [u8], rng: &mut StdRng, cuts: usize) -> Vec<&
     at.sort_unstable();
     at.windows(2).map(|w| &data[w[0]..w[1]]).collect()
 }
+
+/// Encodes one Beast frame (doubling every 0x1a after the type byte).
+pub fn beast_encode(counter: u64, signal: u8, data: &[u8]) -> Vec<u8> {
+    let type_byte = match data.len() {
+        2 => b'1',
+        7 => b'2',
+        14 => b'3',
+        n => panic!("{n}-byte frame"),
+    };
+    let mut out = vec![0x1a, type_byte];
+    let mut body = counter.to_be_bytes()[2..].to_vec();
+    body.push(signal);
+    body.extend_from_slice(data);
+    for b in body {
+        out.push(b);
+        if b == 0x1a {
+            out.push(0x1a);
+        }
+    }
+    out
+}

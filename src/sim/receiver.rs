@@ -98,7 +98,6 @@ const NEVER: u64 = u64::MAX;
 /// Everything the emitters share: derived from the scenario once.
 struct Config {
     end_tick: u64,
-    truth_period_s: f64,
     periods_s: [f64; STREAMS],
     jitter_s: f64,
     pos_sigma_m: f64,
@@ -199,7 +198,7 @@ impl Emitter {
             out.write_truth(self.icao, &state)?;
             self.last_truth_tick = Some(tick);
             self.truth_k += 1;
-            self.next[TRUTH] = to_ticks(self.truth_k as f64 * cfg.truth_period_s);
+            self.next[TRUTH] = to_ticks(self.truth_k as f64 * cfg.periods_s[TRUTH]);
             return Ok(());
         }
         let frame = match s {
@@ -456,7 +455,6 @@ pub fn run(scenario: &Scenario, seed: u64, out_prefix: &Path) -> Result<SimSumma
     periods_s[STATUS] = STATUS_PERIOD_S;
     let cfg = Config {
         end_tick: to_ticks(st.duration_s),
-        truth_period_s: st.truth_period_s,
         periods_s,
         jitter_s: st.jitter_s,
         pos_sigma_m: pos_epu / R95_2D_PER_SIGMA,

@@ -36,7 +36,11 @@ pub const MPS_PER_FPM: f64 = M_PER_FT / 60.0;
 
 /// ME bits: writes `value` (its low `len` bits) at 1-based ME bit `first` (big-endian).
 fn put(me: &mut u64, first: u32, len: u32, value: u64) {
-    let mask = if len >= 64 { u64::MAX } else { (1u64 << len) - 1 };
+    let mask = if len >= 64 {
+        u64::MAX
+    } else {
+        (1u64 << len) - 1
+    };
     let shift = 56u32.saturating_sub(first.saturating_sub(1) + len);
     *me |= (value & mask) << shift;
 }
@@ -135,11 +139,22 @@ pub fn cpr_encode(lat_deg: f64, lon_deg: f64, odd: bool) -> Cpr {
 /// TC 11 airborne position with barometric altitude (DO-260B §2.2.3.2.3): ME 1-5 TC, 6-7
 /// surveillance status (0), 8 NIC supplement B (0), 9-20 altitude, 21 T (0: not UTC
 /// synchronised), 22 F (CPR format), 23-39 YZ, 40-56 XZ.
-pub fn airborne_position(icao: Icao, alt_ft: f64, lat_deg: f64, lon_deg: f64, odd: bool) -> [u8; 14] {
+pub fn airborne_position(
+    icao: Icao,
+    alt_ft: f64,
+    lat_deg: f64,
+    lon_deg: f64,
+    odd: bool,
+) -> [u8; 14] {
     let cpr = cpr_encode(lat_deg, lon_deg, odd);
     let mut me = 0u64;
     put(&mut me, 1, 5, u64::from(TC_AIRBORNE_POSITION));
-    put(&mut me, 9, 12, u64::from(altitude_field_25ft(alt_ft).unwrap_or(0)));
+    put(
+        &mut me,
+        9,
+        12,
+        u64::from(altitude_field_25ft(alt_ft).unwrap_or(0)),
+    );
     put(&mut me, 22, 1, u64::from(cpr.odd));
     put(&mut me, 23, 17, u64::from(cpr.lat));
     put(&mut me, 40, 17, u64::from(cpr.lon));
@@ -191,10 +206,19 @@ pub fn airborne_velocity(icao: Icao, v: &VelocityReport) -> [u8; 14] {
     put(&mut me, 15, 10, speed_code(v.ve_kt, unit));
     put(&mut me, 25, 1, u64::from(v.vn_kt < 0.0));
     put(&mut me, 26, 10, speed_code(v.vn_kt, unit));
-    put(&mut me, 36, 1, u64::from(v.vrate_source == VerticalRateSource::Baro));
+    put(
+        &mut me,
+        36,
+        1,
+        u64::from(v.vrate_source == VerticalRateSource::Baro),
+    );
     put(&mut me, 37, 1, u64::from(v.vrate_fpm < 0.0));
     let vr = (v.vrate_fpm.abs() / 64.0).round();
-    let vr = if vr.is_finite() { (vr as u64 + 1).min(511) } else { 511 };
+    let vr = if vr.is_finite() {
+        (vr as u64 + 1).min(511)
+    } else {
+        511
+    };
     put(&mut me, 38, 9, vr);
     df17(icao, me)
 }
@@ -243,7 +267,13 @@ mod tests {
         // frame, 38,000 ft, YZ = 93000, XZ = 51372; its decoded position (from the newer even
         // frame) is lat 52.25720214843750, lon 3.91937255859375, which lies exactly on the
         // even grid, so encoding it gives those YZ/XZ back.
-        let f = airborne_position(Icao(0x40621D), 38_000.0, 52.2572021484375, 3.91937255859375, false);
+        let f = airborne_position(
+            Icao(0x40621D),
+            38_000.0,
+            52.2572021484375,
+            3.91937255859375,
+            false,
+        );
         assert_eq!(hex(&f), "8D40621D58C382D690C8AC2863A7");
         let c = cpr_encode(52.2572021484375, 3.91937255859375, false);
         assert_eq!((c.lat, c.lon, c.odd), (93000, 51372, false));
@@ -275,7 +305,9 @@ mod tests {
                 nac_v: 0,
             },
         );
-        let mut want = [0x8D, 0x48, 0x50, 0x20, 0x99, 0x44, 0x09, 0x94, 0x08, 0x38, 0x17, 0, 0, 0];
+        let mut want = [
+            0x8D, 0x48, 0x50, 0x20, 0x99, 0x44, 0x09, 0x94, 0x08, 0x38, 0x17, 0, 0, 0,
+        ];
         want[5] &= !0x40; // ME bit 10 (IFR) = frame byte 5, bit 6 from the top
         want[10] = 0; // ME bits 49-56 (GNSS-baro difference)
         let pi = crc24(&want[..11]);
@@ -302,7 +334,8 @@ mod tests {
     #[test]
     fn velocity_saturates_and_goes_supersonic() {
         let me_of = |f: [u8; 14]| f[4..11].iter().fold(0u64, |a, &b| (a << 8) | u64::from(b));
-        let field = |me: u64, first: u32, len: u32| (me >> (56 - (first - 1) - len)) & ((1 << len) - 1);
+        let field =
+            |me: u64, first: u32, len: u32| (me >> (56 - (first - 1) - len)) & ((1 << len) - 1);
         let v = |ve_kt, vn_kt, vrate_fpm| VelocityReport {
             ve_kt,
             vn_kt,
@@ -314,7 +347,10 @@ mod tests {
         assert_eq!(field(me, 6, 3), 1);
         assert_eq!(field(me, 15, 10), 1022);
         assert_eq!((field(me, 25, 1), field(me, 26, 10)), (1, 4));
-        assert_eq!((field(me, 36, 1), field(me, 37, 1), field(me, 38, 9)), (1, 0, 511));
+        assert_eq!(
+            (field(me, 36, 1), field(me, 37, 1), field(me, 38, 9)),
+            (1, 0, 511)
+        );
         assert_eq!(field(me, 11, 3), 2);
         let me = me_of(airborne_velocity(Icao(1), &v(-2000.0, 10.0, -64.0)));
         assert_eq!(field(me, 6, 3), 2);
@@ -322,7 +358,10 @@ mod tests {
         assert_eq!(field(me, 26, 10), 4); // 10 kt / 4 = 2.5 -> 3 (round half away) + 1
         assert_eq!((field(me, 37, 1), field(me, 38, 9)), (1, 2));
         let me = me_of(airborne_velocity(Icao(1), &v(1e6, f64::NAN, f64::INFINITY)));
-        assert_eq!((field(me, 15, 10), field(me, 26, 10), field(me, 38, 9)), (1023, 1023, 511));
+        assert_eq!(
+            (field(me, 15, 10), field(me, 26, 10), field(me, 38, 9)),
+            (1023, 1023, 511)
+        );
     }
 
     #[test]
@@ -337,7 +376,13 @@ mod tests {
 
     #[test]
     fn cpr_is_total_on_odd_inputs() {
-        for (lat, lon) in [(90.0, 180.0), (-90.0, -180.0), (f64::NAN, 0.0), (0.0, f64::INFINITY), (89.99, 359.0)] {
+        for (lat, lon) in [
+            (90.0, 180.0),
+            (-90.0, -180.0),
+            (f64::NAN, 0.0),
+            (0.0, f64::INFINITY),
+            (89.99, 359.0),
+        ] {
             let c = cpr_encode(lat, lon, true);
             assert!(c.lat < 1 << 17 && c.lon < 1 << 17);
         }

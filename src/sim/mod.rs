@@ -34,7 +34,9 @@ pub enum SimError {
     #[error("{key}: {reason}")]
     Invalid { key: String, reason: String },
     /// Neither a readable file nor a built-in scenario.
-    #[error("no scenario file {spec:?} and no built-in scenario of that name (built-in: {available})")]
+    #[error(
+        "no scenario file {spec:?} and no built-in scenario of that name (built-in: {available})"
+    )]
     UnknownScenario { spec: String, available: String },
     /// Reading a scenario or writing an output failed.
     #[error("{}: {source}", path.display())]
@@ -75,18 +77,39 @@ pub struct SimSummary {
 impl SimSummary {
     /// Heard frames written to each feed.
     pub fn frames_written(&self) -> u64 {
-        self.position_frames + self.velocity_frames + self.identification_frames + self.status_frames
+        self.position_frames
+            + self.velocity_frames
+            + self.identification_frames
+            + self.status_frames
     }
 }
 
 /// The built-in scenarios: name and TOML text (fixtures/scenarios/NAME.toml, embedded).
 pub const BUILTIN: [(&str, &str); 6] = [
-    ("paper000", include_str!("../../fixtures/scenarios/paper000.toml")),
-    ("paper001", include_str!("../../fixtures/scenarios/paper001.toml")),
-    ("paper002", include_str!("../../fixtures/scenarios/paper002.toml")),
-    ("paper003", include_str!("../../fixtures/scenarios/paper003.toml")),
-    ("departure", include_str!("../../fixtures/scenarios/departure.toml")),
-    ("approach", include_str!("../../fixtures/scenarios/approach.toml")),
+    (
+        "paper000",
+        include_str!("../../fixtures/scenarios/paper000.toml"),
+    ),
+    (
+        "paper001",
+        include_str!("../../fixtures/scenarios/paper001.toml"),
+    ),
+    (
+        "paper002",
+        include_str!("../../fixtures/scenarios/paper002.toml"),
+    ),
+    (
+        "paper003",
+        include_str!("../../fixtures/scenarios/paper003.toml"),
+    ),
+    (
+        "departure",
+        include_str!("../../fixtures/scenarios/departure.toml"),
+    ),
+    (
+        "approach",
+        include_str!("../../fixtures/scenarios/approach.toml"),
+    ),
 ];
 
 /// Names of the built-in scenarios.
@@ -137,8 +160,14 @@ mod tests {
 
     #[test]
     fn files_win_and_unknown_names_list_the_builtins() {
-        let path = concat!(env!("CARGO_MANIFEST_DIR"), "/fixtures/scenarios/paper003.toml");
-        assert_eq!(load_scenario(path).unwrap(), load_scenario("paper003").unwrap());
+        let path = concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/fixtures/scenarios/paper003.toml"
+        );
+        assert_eq!(
+            load_scenario(path).unwrap(),
+            load_scenario("paper003").unwrap()
+        );
         let e = load_scenario("nope").unwrap_err().to_string();
         assert_eq!(
             e,

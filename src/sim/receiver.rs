@@ -20,7 +20,7 @@
 //! Outputs, all time-ordered and byte-identical for the same seed: `PREFIX.beast`,
 //! `PREFIX.avr` and `PREFIX.truth.csv`.
 
-use super::encode::{self, VelocityReport, CATEGORY_LARGE, M_PER_FT, MPS_PER_FPM, MPS_PER_KT};
+use super::encode::{self, VelocityReport, CATEGORY_LARGE, MPS_PER_FPM, MPS_PER_KT, M_PER_FT};
 use super::scenario::{AircraftPlan, Scenario};
 use super::truth::{Flight, TruthState, TRUTH_HEADER};
 use super::wgs84;
@@ -98,7 +98,6 @@ const NEVER: u64 = u64::MAX;
 /// Everything the emitters share: derived from the scenario once.
 struct Config {
     end_tick: u64,
-    truth_period_s: f64,
     periods_s: [f64; STREAMS],
     jitter_s: f64,
     pos_sigma_m: f64,
@@ -191,16 +190,15 @@ impl Emitter {
     }
 
     /// Serves this aircraft's earliest event.
-    fn fire(&mut self, cfg: &Config, out: &mut Outputs) -> io::Result<()> {
+    fn fire(&mut self, cfg: &Config, out: &mut Outputs) -> Result<(), SimError> {
         let (s, tick) = self.next_event();
         let t_s = tick as f64 / TICKS_PER_S;
         let state = self.flight.state_at(t_s);
         if s == TRUTH {
-            state.write_csv_row(&mut out.truth, self.icao)?;
-            out.summary.truth_rows += 1;
+            out.write_truth(self.icao, &state)?;
             self.last_truth_tick = Some(tick);
             self.truth_k += 1;
-            self.next[TRUTH] = to_ticks(self.truth_k as f64 * cfg.truth_period_s);
+            self.next[TRUTH] = to_ticks(self.truth_k as f64 * cfg.periods_s[TRUTH]);
             return Ok(());
         }
         let frame = match s {
@@ -253,7 +251,7 @@ impl Emitter {
         state: &TruthState,
         cfg: &Config,
         out: &mut Outputs,
-    ) -> io::Result<()> {
+    ) -> Result<(), SimError> {
         out.summary.frames_emitted += 1;
         if self.rng.gen::<f64>() >= cfg.reception_probability {
             out.summary.frames_lost += 1;
@@ -271,8 +269,7 @@ impl Emitter {
         }
         out.write_frame(tick, signal_byte(state, cfg), &frame)?;
         if matches!(s, POSITION | VELOCITY) && self.last_truth_tick != Some(tick) {
-            state.write_csv_row(&mut out.truth, self.icao)?;
-            out.summary.truth_rows += 1;
+            out.write_truth(self.icao, state)?;
             self.last_truth_tick = Some(tick);
         }
         Ok(())
@@ -302,8 +299,16 @@ fn corrupt(frame: &mut [u8; 14], rng: &mut StdRng) {
     }
 }
 
-/// Beast signal byte: amplitude falling as 1/range from the reference (readsb reads it as
-/// amplitude: RSSI = 20 log10(byte/255) dBFS), full scale within 5 km.
+/// Beast signal byte: amplitude falling as 1/range (readsb reads the byte as an amplitude:
+/// RSSI = 20 log10(byte/255) dBFS), full scale within 5 km, never 0.
+fn signal_from_range(range_m: f64) -> u8 {
+    let range = range_m.max(FULL_SIGNAL_RANGE_M);
+    (255.0 * FULL_SIGNAL_RANGE_M / range)
+        .round()
+        .clamp(1.0, 255.0) as u8
+}
+
+/// Signal byte of a frame sent from `s`, by its slant range from the reference.
 fn signal_byte(s: &TruthState, cfg: &Config) -> u8 {
     let dn = (s.lat_deg.to_radians() - cfg.ref_lat_rad) * cfg.ref_m;
     let mut dl = s.lon_deg.to_radians() - cfg.ref_lon_rad;
@@ -313,15 +318,47 @@ fn signal_byte(s: &TruthState, cfg: &Config) -> u8 {
         dl += std::f64::consts::TAU;
     }
     let de = dl * cfg.ref_n_cos;
-    let range = (de * de + dn * dn + s.alt_m * s.alt_m).sqrt().max(FULL_SIGNAL_RANGE_M);
-    (255.0 * FULL_SIGNAL_RANGE_M / range).round().clamp(1.0, 255.0) as u8
+    signal_from_range((de * de + dn * dn + s.alt_m * s.alt_m).sqrt())
+}
+
+/// One output file and its path (for errors).
+struct Sink {
+    path: PathBuf,
+    w: BufWriter<File>,
+}
+
+impl Sink {
+    fn create(path: PathBuf) -> Result<Self, SimError> {
+        match File::create(&path) {
+            Ok(f) => Ok(Self {
+                w: BufWriter::with_capacity(1 << 16, f),
+                path,
+            }),
+            Err(source) => Err(SimError::Io { path, source }),
+        }
+    }
+
+    fn err(&self, source: io::Error) -> SimError {
+        SimError::Io {
+            path: self.path.clone(),
+            source,
+        }
+    }
+
+    fn write_all(&mut self, bytes: &[u8]) -> Result<(), SimError> {
+        self.w.write_all(bytes).map_err(|e| self.err(e))
+    }
+
+    fn flush(&mut self) -> Result<(), SimError> {
+        self.w.flush().map_err(|e| self.err(e))
+    }
 }
 
 /// The three output files, the junk generator and the counters.
 struct Outputs {
-    beast: BufWriter<File>,
-    avr: BufWriter<File>,
-    truth: BufWriter<File>,
+    beast: Sink,
+    avr: Sink,
+    truth: Sink,
     junk_rng: StdRng,
     junk_rate: f64,
     summary: SimSummary,
@@ -330,8 +367,16 @@ struct Outputs {
 const HEX: &[u8; 16] = b"0123456789ABCDEF";
 
 impl Outputs {
+    /// Writes one truth row.
+    fn write_truth(&mut self, icao: Icao, state: &TruthState) -> Result<(), SimError> {
+        let r = state.write_csv_row(&mut self.truth.w, icao);
+        r.map_err(|e| self.truth.err(e))?;
+        self.summary.truth_rows += 1;
+        Ok(())
+    }
+
     /// Writes one frame to both feeds (with a junk run before it now and then).
-    fn write_frame(&mut self, tick: u64, signal: u8, frame: &[u8; 14]) -> io::Result<()> {
+    fn write_frame(&mut self, tick: u64, signal: u8, frame: &[u8; 14]) -> Result<(), SimError> {
         if self.junk_rate > 0.0 && self.junk_rng.gen::<f64>() < self.junk_rate {
             self.write_junk()?;
         }
@@ -342,7 +387,11 @@ impl Outputs {
         buf[1] = b'3';
         let mut len = 2;
         let counter = tick.to_be_bytes();
-        for &b in counter[2..].iter().chain(std::iter::once(&signal)).chain(frame.iter()) {
+        for &b in counter[2..]
+            .iter()
+            .chain(std::iter::once(&signal))
+            .chain(frame.iter())
+        {
             for _ in 0..if b == ESC { 2 } else { 1 } {
                 if let Some(slot) = buf.get_mut(len) {
                     *slot = b;
@@ -366,7 +415,7 @@ impl Outputs {
     /// 1 to 16 random bytes, none of them 0x1a (so that a Beast parser resynchronises
     /// after exactly these bytes and counts them all), and a text line of 1 to 16 letters g-z
     /// (never hex, so an AVR parser rejects the whole line).
-    fn write_junk(&mut self) -> io::Result<()> {
+    fn write_junk(&mut self) -> Result<(), SimError> {
         let n = self.junk_rng.gen_range(1..=MAX_JUNK);
         let mut bytes = [0u8; MAX_JUNK];
         let mut text = [b'\n'; MAX_JUNK + 1];
@@ -390,15 +439,6 @@ fn with_ext(prefix: &Path, ext: &str) -> PathBuf {
     PathBuf::from(s)
 }
 
-fn create(path: &Path) -> Result<BufWriter<File>, SimError> {
-    File::create(path)
-        .map(|f| BufWriter::with_capacity(1 << 16, f))
-        .map_err(|source| SimError::Io {
-            path: path.to_owned(),
-            source,
-        })
-}
-
 /// Runs the scenario with `seed` and writes `PREFIX.beast`, `PREFIX.avr`, `PREFIX.truth.csv`.
 pub fn run(scenario: &Scenario, seed: u64, out_prefix: &Path) -> Result<SimSummary, SimError> {
     let plans = scenario.plan()?;
@@ -407,16 +447,15 @@ pub fn run(scenario: &Scenario, seed: u64, out_prefix: &Path) -> Result<SimSumma
     let (vel_bound, vz_bound) = nac_v_bounds_mps(st.nac_v).unwrap_or((f64::NAN, f64::NAN));
     let ref_lat = scenario.reference.lat_deg.to_radians();
     let (ref_m, ref_n) = wgs84::radii_m(ref_lat);
+    let mut periods_s = [0.0; STREAMS];
+    periods_s[TRUTH] = st.truth_period_s;
+    periods_s[POSITION] = st.report_period_s;
+    periods_s[VELOCITY] = st.report_period_s;
+    periods_s[IDENT] = IDENT_PERIOD_S;
+    periods_s[STATUS] = STATUS_PERIOD_S;
     let cfg = Config {
         end_tick: to_ticks(st.duration_s),
-        truth_period_s: st.truth_period_s,
-        periods_s: [
-            st.truth_period_s,
-            st.report_period_s,
-            st.report_period_s,
-            IDENT_PERIOD_S,
-            STATUS_PERIOD_S,
-        ],
+        periods_s,
         jitter_s: st.jitter_s,
         pos_sigma_m: pos_epu / R95_2D_PER_SIGMA,
         vel_sigma_mps: vel_bound / R95_2D_PER_SIGMA,
@@ -431,30 +470,24 @@ pub fn run(scenario: &Scenario, seed: u64, out_prefix: &Path) -> Result<SimSumma
         ref_m,
         ref_n_cos: ref_n * ref_lat.cos(),
     };
-    let beast_path = with_ext(out_prefix, ".beast");
-    let avr_path = with_ext(out_prefix, ".avr");
-    let truth_path = with_ext(out_prefix, ".truth.csv");
     let mut out = Outputs {
-        beast: create(&beast_path)?,
-        avr: create(&avr_path)?,
-        truth: create(&truth_path)?,
+        beast: Sink::create(with_ext(out_prefix, ".beast"))?,
+        avr: Sink::create(with_ext(out_prefix, ".avr"))?,
+        truth: Sink::create(with_ext(out_prefix, ".truth.csv"))?,
         junk_rng: StdRng::seed_from_u64(mix(seed ^ 0x6A75_6E6B)),
         junk_rate: st.junk_rate,
         summary: SimSummary {
             aircraft: plans.len(),
             duration_s: st.duration_s,
             seed,
-            beast_path: beast_path.clone(),
-            avr_path: avr_path.clone(),
-            truth_path: truth_path.clone(),
+            beast_path: with_ext(out_prefix, ".beast"),
+            avr_path: with_ext(out_prefix, ".avr"),
+            truth_path: with_ext(out_prefix, ".truth.csv"),
             ..SimSummary::default()
         },
     };
-    let io_err = |path: &Path| {
-        let path = path.to_owned();
-        move |source| SimError::Io { path, source }
-    };
-    writeln!(out.truth, "{TRUTH_HEADER}").map_err(io_err(&truth_path))?;
+    out.truth.write_all(TRUTH_HEADER.as_bytes())?;
+    out.truth.write_all(b"\n")?;
     let mut emitters: Vec<Emitter> = plans
         .into_iter()
         .enumerate()
@@ -469,17 +502,18 @@ pub fn run(scenario: &Scenario, seed: u64, out_prefix: &Path) -> Result<SimSumma
         if tick > cfg.end_tick {
             break;
         }
-        let Some(e) = emitters.get_mut(i) else { continue };
-        // Which file failed is not known here; name the frame feed, the likeliest.
-        e.fire(&cfg, &mut out).map_err(io_err(&beast_path))?;
+        let Some(e) = emitters.get_mut(i) else {
+            continue;
+        };
+        e.fire(&cfg, &mut out)?;
         let (_, next) = e.next_event();
         if next <= cfg.end_tick {
             heap.push(Reverse((next, i)));
         }
     }
-    out.beast.flush().map_err(io_err(&beast_path))?;
-    out.avr.flush().map_err(io_err(&avr_path))?;
-    out.truth.flush().map_err(io_err(&truth_path))?;
+    out.beast.flush()?;
+    out.avr.flush()?;
+    out.truth.flush()?;
     Ok(out.summary)
 }
 
@@ -497,6 +531,16 @@ mod tests {
         assert_eq!(nac_p_epu_m(12), None);
         assert_eq!(nac_v_bounds_mps(2), Some((3.0, 4.572)));
         assert_eq!(nac_v_bounds_mps(5), None);
+    }
+
+    #[test]
+    fn signal_falls_as_one_over_range() {
+        assert_eq!(signal_from_range(0.0), 255);
+        assert_eq!(signal_from_range(5_000.0), 255);
+        assert_eq!(signal_from_range(10_000.0), 128); // 127.5 rounds up
+        assert_eq!(signal_from_range(50_000.0), 26); // 25.5 rounds up
+        assert_eq!(signal_from_range(1e9), 1);
+        assert_eq!(signal_from_range(f64::NAN), 255);
     }
 
     #[test]

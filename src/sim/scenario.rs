@@ -25,6 +25,8 @@ pub const DEFAULT_TRUTH_PERIOD_S: f64 = 0.5;
 /// Latitudes beyond this are refused: the local-level integration of `truth` divides by
 /// cos(lat), and CPR zones shrink to one near the poles. Nothing the papers need is there.
 pub const MAX_ABS_LAT_DEG: f64 = 85.0;
+/// Longest scenario: a week (Beast counters are 48 bits of 12 MHz, about 271 days).
+pub const MAX_DURATION_S: f64 = 7.0 * 86_400.0;
 
 /// A whole scenario file.
 #[derive(Clone, Debug, PartialEq, Deserialize)]
@@ -169,7 +171,10 @@ pub enum Segment {
     },
     /// Climb (> 0) or descent (< 0) at constant ground velocity.
     #[serde(rename = "CH")]
-    Ch { duration_s: f64, vertical_rate_mps: f64 },
+    Ch {
+        duration_s: f64,
+        vertical_rate_mps: f64,
+    },
     /// Climb or descent with constant along-track acceleration (take-off, landing).
     #[serde(rename = "CHCA")]
     Chca {
@@ -205,9 +210,12 @@ impl Segment {
     /// Vertical rate flown during the segment, m/s (0 for the level modes).
     pub fn vertical_rate_mps(&self) -> f64 {
         match *self {
-            Self::Ch { vertical_rate_mps, .. } | Self::Chca { vertical_rate_mps, .. } => {
-                vertical_rate_mps
+            Self::Ch {
+                vertical_rate_mps, ..
             }
+            | Self::Chca {
+                vertical_rate_mps, ..
+            } => vertical_rate_mps,
             _ => 0.0,
         }
     }
@@ -231,7 +239,10 @@ fn invalid(key: impl Into<String>, reason: impl Into<String>) -> SimError {
 /// `value` must be finite and within `range` (inclusive), or an error naming `key`.
 fn check_range(key: &str, value: f64, lo: f64, hi: f64) -> Result<(), SimError> {
     if !value.is_finite() || value < lo || value > hi {
-        return Err(invalid(key, format!("must be within [{lo}, {hi}], got {value}")));
+        return Err(invalid(
+            key,
+            format!("must be within [{lo}, {hi}], got {value}"),
+        ));
     }
     Ok(())
 }
@@ -247,7 +258,10 @@ pub(crate) fn check_positive(key: &str, value: f64) -> Result<(), SimError> {
 /// `value` must be finite, or an error naming `key`.
 pub(crate) fn check_finite(key: &str, value: f64) -> Result<(), SimError> {
     if !value.is_finite() {
-        return Err(invalid(key, format!("must be a finite number, got {value}")));
+        return Err(invalid(
+            key,
+            format!("must be a finite number, got {value}"),
+        ));
     }
     Ok(())
 }
@@ -294,7 +308,10 @@ impl Scenario {
                 .parse()
                 .map_err(|e: String| invalid(format!("aircraft[{i}].icao"), e))?;
             if icao.0 == 0 {
-                return Err(invalid(format!("aircraft[{i}].icao"), "000000 is not an address"));
+                return Err(invalid(
+                    format!("aircraft[{i}].icao"),
+                    "000000 is not an address",
+                ));
             }
             if let Some((_, j)) = seen.iter().find(|(a, _)| *a == icao.0) {
                 return Err(invalid(
@@ -324,31 +341,56 @@ impl Scenario {
 
     fn validate_globals(&self) -> Result<(), SimError> {
         let r = &self.reference;
-        check_range("reference.lat_deg", r.lat_deg, -MAX_ABS_LAT_DEG, MAX_ABS_LAT_DEG)?;
+        check_range(
+            "reference.lat_deg",
+            r.lat_deg,
+            -MAX_ABS_LAT_DEG,
+            MAX_ABS_LAT_DEG,
+        )?;
         check_range("reference.lon_deg", r.lon_deg, -180.0, 180.0)?;
         let s = &self.settings;
         check_positive("settings.duration_s", s.duration_s)?;
-        // Beast counters are 48 bits of 12 MHz: about 271 days. A week is plenty.
-        check_range("settings.duration_s", s.duration_s, 0.0, 7.0 * 86_400.0)?;
+        check_range("settings.duration_s", s.duration_s, 0.0, MAX_DURATION_S)?;
         if !(1..=11).contains(&s.nac_p) {
             return Err(invalid(
                 "settings.nac_p",
-                format!("must be 1..=11, got {} (0 means unknown accuracy: no noise to simulate)", s.nac_p),
+                format!(
+                    "must be 1..=11, got {} (0 means unknown accuracy: no noise to simulate)",
+                    s.nac_p
+                ),
             ));
         }
         if !(1..=4).contains(&s.nac_v) {
             return Err(invalid(
                 "settings.nac_v",
-                format!("must be 1..=4, got {} (0 means unknown accuracy: no noise to simulate)", s.nac_v),
+                format!(
+                    "must be 1..=4, got {} (0 means unknown accuracy: no noise to simulate)",
+                    s.nac_v
+                ),
             ));
         }
-        check_range("settings.reception_probability", s.reception_probability, 0.0, 1.0)?;
-        check_range("settings.corrupt_frame_rate", s.corrupt_frame_rate, 0.0, 1.0)?;
+        check_range(
+            "settings.reception_probability",
+            s.reception_probability,
+            0.0,
+            1.0,
+        )?;
+        check_range(
+            "settings.corrupt_frame_rate",
+            s.corrupt_frame_rate,
+            0.0,
+            1.0,
+        )?;
         check_range("settings.junk_rate", s.junk_rate, 0.0, 1.0)?;
         check_positive("settings.report_period_s", s.report_period_s)?;
         check_positive("settings.truth_period_s", s.truth_period_s)?;
         check_range("settings.truth_period_s", s.truth_period_s, 1e-3, f64::MAX)?;
-        check_range("settings.report_period_s", s.report_period_s, 1e-3, f64::MAX)?;
+        check_range(
+            "settings.report_period_s",
+            s.report_period_s,
+            1e-3,
+            f64::MAX,
+        )?;
         check_finite("settings.jitter_s", s.jitter_s)?;
         let shortest = s.report_period_s.min(super::receiver::STATUS_PERIOD_S);
         if s.jitter_s < 0.0 || s.jitter_s >= shortest / 2.0 {
@@ -388,13 +430,40 @@ const FLEET_MAX_ACCEL_MPS2: f64 = 1.5;
 const FLEET_MAX_VRATE_MPS: f64 = 15.0;
 const FLEET_TURN_RATE_DPS: (f64, f64) = (0.5, 3.0);
 const FLEET_SEGMENT_S: (f64, f64) = (20.0, 120.0);
+/// Largest fleet: 100,000 aircraft (addresses are drawn among 16.7 M, callsigns number
+/// SIM00000-SIM99999).
+pub const MAX_FLEET: usize = 100_000;
 
 /// N aircraft on random routes for load tests: random starts within the radius, random
 /// speeds, tracks and altitudes, and random sequences of the five modes that stay within an
 /// airliner's envelope (90-260 m/s, 1.5-12.5 km, |a| <= 1.5 m/s^2, |vz| <= 15 m/s, turns of
 /// 0.5-3 deg/s). Distinct ICAO addresses, callsigns `SIM00000`... Receiver settings: NACp 9,
 /// NACv 2, 90 % reception, DO-260B's 0.4-0.6 s intervals.
-pub fn fleet(spec: &FleetSpec) -> Scenario {
+///
+/// The spec is checked first (errors name `fleet.aircraft`, `fleet.radius_km`, ...): at most
+/// [`MAX_FLEET`] aircraft, so that distinct addresses always exist.
+pub fn fleet(spec: &FleetSpec) -> Result<Scenario, SimError> {
+    if spec.aircraft == 0 || spec.aircraft > MAX_FLEET {
+        return Err(invalid(
+            "fleet.aircraft",
+            format!("must be 1..={MAX_FLEET}, got {}", spec.aircraft),
+        ));
+    }
+    check_range("fleet.radius_km", spec.radius_km, 0.0, 2_000.0)?;
+    check_positive("fleet.duration_s", spec.duration_s)?;
+    check_range("fleet.duration_s", spec.duration_s, 0.0, MAX_DURATION_S)?;
+    check_range(
+        "fleet.reference.lat_deg",
+        spec.reference.lat_deg,
+        -MAX_ABS_LAT_DEG,
+        MAX_ABS_LAT_DEG,
+    )?;
+    check_range(
+        "fleet.reference.lon_deg",
+        spec.reference.lon_deg,
+        -180.0,
+        180.0,
+    )?;
     let mut rng = StdRng::seed_from_u64(spec.seed);
     let mut used = HashSet::with_capacity(spec.aircraft);
     let mut aircraft = Vec::with_capacity(spec.aircraft);
@@ -405,7 +474,7 @@ pub fn fleet(spec: &FleetSpec) -> Scenario {
                 break a;
             }
         };
-        let r_m = spec.radius_km.max(0.0) * 1000.0 * rng.gen::<f64>().sqrt();
+        let r_m = spec.radius_km * 1000.0 * rng.gen::<f64>().sqrt();
         let bearing = rng.gen_range(0.0..std::f64::consts::TAU);
         let mut speed = rng.gen_range(120.0..250.0);
         let mut alt = rng.gen_range(3_000.0..12_000.0);
@@ -458,7 +527,7 @@ pub fn fleet(spec: &FleetSpec) -> Scenario {
         let first_vz = segments.first().map_or(0.0, Segment::vertical_rate_mps);
         aircraft.push(AircraftSpec {
             icao: format!("{icao:06x}"),
-            callsign: format!("SIM{:05}", i % 100_000),
+            callsign: format!("SIM{i:05}"),
             start: Start {
                 east_m: Some(r_m * bearing.sin()),
                 north_m: Some(r_m * bearing.cos()),
@@ -474,7 +543,7 @@ pub fn fleet(spec: &FleetSpec) -> Scenario {
             segments,
         });
     }
-    Scenario {
+    Ok(Scenario {
         reference: spec.reference,
         settings: Settings {
             duration_s: spec.duration_s,
@@ -490,16 +559,22 @@ pub fn fleet(spec: &FleetSpec) -> Scenario {
             junk_rate: 0.0,
         },
         aircraft,
-    }
+    })
 }
 
 /// The generator tracks the speed forward from the start; recover the start speed by
 /// undoing the along-track accelerations (exact: speed changes only in CA and CHCA).
 fn speed_at_start(segments: &[Segment], final_speed: f64) -> f64 {
     segments.iter().fold(final_speed, |v, s| match *s {
-        Segment::Ca { duration_s, accel_mps2 } | Segment::Chca { duration_s, accel_mps2, .. } => {
-            v - accel_mps2 * duration_s
+        Segment::Ca {
+            duration_s,
+            accel_mps2,
         }
+        | Segment::Chca {
+            duration_s,
+            accel_mps2,
+            ..
+        } => v - accel_mps2 * duration_s,
         _ => v,
     })
 }
@@ -619,7 +694,10 @@ segments = [
 
     #[test]
     fn duplicate_addresses_are_refused() {
-        let two = format!("{MINIMAL}{}", &MINIMAL[MINIMAL.find("[[aircraft]]").unwrap()..]);
+        let two = format!(
+            "{MINIMAL}{}",
+            &MINIMAL[MINIMAL.find("[[aircraft]]").unwrap()..]
+        );
         assert_eq!(
             err_of(&two),
             "aircraft[1].icao: abc123 is already used by aircraft[0]"
@@ -631,8 +709,14 @@ segments = [
         for (from, to) in [
             ("jitter_s = 0.1", "jitter_s = 0.1\nnacp = 3"),
             ("lon_deg = 1.37", "lon_deg = 1.37\nalt_m = 3.0"),
-            ("direction = \"left\"", "direction = \"left\", accel_mps2 = 1.0"),
-            ("callsign = \"TEST1\"", "callsign = \"TEST1\"\nsquawk = 1200"),
+            (
+                "direction = \"left\"",
+                "direction = \"left\", accel_mps2 = 1.0",
+            ),
+            (
+                "callsign = \"TEST1\"",
+                "callsign = \"TEST1\"\nsquawk = 1200",
+            ),
         ] {
             let e = err_of(&MINIMAL.replace(from, to));
             assert!(e.contains("unknown field"), "{from}: {e}");
@@ -665,7 +749,7 @@ segments = [
             duration_s: 1800.0,
             seed: 7,
         };
-        let s = fleet(&spec);
+        let s = fleet(&spec).unwrap();
         let plans = s.plan().unwrap();
         assert_eq!(plans.len(), 200);
         let addrs: HashSet<u32> = plans.iter().map(|p| p.icao.0).collect();
@@ -695,6 +779,28 @@ segments = [
             }
         }
         // Same seed, same fleet.
-        assert_eq!(fleet(&spec), s);
+        assert_eq!(fleet(&spec).unwrap(), s);
+        let bad = |f: FleetSpec| fleet(&f).unwrap_err().to_string();
+        assert_eq!(
+            bad(FleetSpec {
+                aircraft: 0,
+                ..spec
+            }),
+            "fleet.aircraft: must be 1..=100000, got 0"
+        );
+        assert_eq!(
+            bad(FleetSpec {
+                radius_km: f64::NAN,
+                ..spec
+            }),
+            "fleet.radius_km: must be within [0, 2000], got NaN"
+        );
+        assert_eq!(
+            bad(FleetSpec {
+                duration_s: -1.0,
+                ..spec
+            }),
+            "fleet.duration_s: must be > 0, got -1"
+        );
     }
 }

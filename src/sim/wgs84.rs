@@ -47,7 +47,11 @@ pub fn ecef_to_geodetic(ecef: [f64; 3]) -> (f64, f64, f64) {
     let p = x.hypot(y);
     if p < 1e-9 {
         // On the polar axis: latitude is +-90 degrees, longitude is arbitrary (0).
-        let lat = if z >= 0.0 { std::f64::consts::FRAC_PI_2 } else { -std::f64::consts::FRAC_PI_2 };
+        let lat = if z >= 0.0 {
+            std::f64::consts::FRAC_PI_2
+        } else {
+            -std::f64::consts::FRAC_PI_2
+        };
         return (lat, 0.0, z.abs() - b);
     }
     let ff = 54.0 * b * b * z * z;
@@ -58,7 +62,8 @@ pub fn ecef_to_geodetic(ecef: [f64; 3]) -> (f64, f64, f64) {
     let pp = ff / (3.0 * k * k * g * g);
     let q = (1.0 + 2.0 * E2 * E2 * pp).sqrt();
     let r0 = -(pp * E2 * p) / (1.0 + q)
-        + (0.5 * a * a * (1.0 + 1.0 / q) - pp * (1.0 - E2) * z * z / (q * (1.0 + q))
+        + (0.5 * a * a * (1.0 + 1.0 / q)
+            - pp * (1.0 - E2) * z * z / (q * (1.0 + q))
             - 0.5 * pp * p * p)
             .max(0.0)
             .sqrt();
@@ -100,7 +105,10 @@ mod tests {
         let p = geodetic_to_ecef(0.0, 0.0, 0.0);
         assert!((p[0] - 6_378_137.0).abs() < 1e-9 && p[1].abs() < 1e-9 && p[2].abs() < 1e-9);
         let p = geodetic_to_ecef(std::f64::consts::FRAC_PI_2, 0.0, 0.0);
-        assert!(p[0].abs() < 1e-6 && (p[2] - 6_356_752.314_245).abs() < 1e-5, "{p:?}");
+        assert!(
+            p[0].abs() < 1e-6 && (p[2] - 6_356_752.314_245).abs() < 1e-5,
+            "{p:?}"
+        );
         // Radii at the equator: M = a(1 - e^2) = 6 335 439.327 293 m, N = a.
         let (m, n) = radii_m(0.0);
         assert!((m - 6_335_439.327_293).abs() < 1e-5 && (n - A_M).abs() < 1e-9);
@@ -121,8 +129,11 @@ mod tests {
                         dl += 2.0 * std::f64::consts::PI;
                     }
                     let de = dl * 6.4e6 * la.cos();
-                    assert!(dn.abs() < 1e-4 && de.abs() < 1e-4 && (h2 - h).abs() < 1e-4,
-                        "{lat} {lon} {h}: {dn} {de} {}", h2 - h);
+                    assert!(
+                        dn.abs() < 1e-4 && de.abs() < 1e-4 && (h2 - h).abs() < 1e-4,
+                        "{lat} {lon} {h}: {dn} {de} {}",
+                        h2 - h
+                    );
                 }
             }
         }

@@ -870,7 +870,8 @@ fn afr34zg_agrees_with_rs1090() {
     assert_eq!(counts, [6457, 1867, 865, 6384, 28567, 13653]);
     assert_eq!(movement_band_13_38, 904);
     assert_eq!(noise_seen, NOISE_ALTITUDES.len() + NOISE_SQUAWKS.len());
-    eprintln!("GNSS-baro difference of 0 ft (rs1090: none): {zero_diff}");
+    // BDS 0,9 lines of the file whose ME 50-56 hold 1.
+    assert_eq!(zero_diff, 88);
     assert_eq!(vrate_src_opposite, 6384);
 }
 
@@ -1127,6 +1128,6 @@ fn decoding_allocates_nothing() {
         all.len()
     );
     // The counter does see allocations on this thread.
-    let v = vec![1u8; 10];
-    assert!(allocations() > after && v.len() == 10);
+    let s = String::from("allocates");
+    assert!(allocations() > after && s.len() == 9);
 }

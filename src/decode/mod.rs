@@ -284,7 +284,7 @@ impl RecentAddresses {
     fn contains(&self, address: u32, now_s: f64, window_s: f64) -> bool {
         for i in Self::probe(address) {
             match self.slots.get(i) {
-                Some(&(a, t)) if a == address => return now_s - t <= window_s,
+                Some(&(a, t)) if a == address => return is_recent(t, now_s, window_s),
                 Some(&(EMPTY_ADDRESS, _)) | None => return false,
                 Some(_) => {}
             }
@@ -305,7 +305,7 @@ impl RecentAddresses {
                     free = free.or(Some(i));
                     break;
                 }
-                Some(&(_, t)) if free.is_none() && !(now_s - t <= window_s) => free = Some(i),
+                Some(&(_, t)) if free.is_none() && !is_recent(t, now_s, window_s) => free = Some(i),
                 _ => {}
             }
         }
@@ -317,6 +317,12 @@ impl RecentAddresses {
             None => false,
         }
     }
+}
+
+/// Whether an address last heard at `heard_s` is still recent at `now_s`. NaN times are never
+/// recent; a time after `now_s` (a replay that restarted) is.
+fn is_recent(heard_s: f64, now_s: f64, window_s: f64) -> bool {
+    now_s - heard_s <= window_s
 }
 
 /// Single-bit error syndromes of a 112-bit frame, sorted: `(syndrome, bit)` for bits 6-112.

@@ -171,7 +171,10 @@ impl Config {
         if self.server.listen.parse::<std::net::SocketAddr>().is_err() {
             return Err(bad(
                 "server.listen",
-                format!("{:?} is not an address like 127.0.0.1:8080", self.server.listen),
+                format!(
+                    "{:?} is not an address like 127.0.0.1:8080",
+                    self.server.listen
+                ),
             ));
         }
         if let Some(r) = self.receiver {
@@ -200,7 +203,10 @@ impl Config {
             ));
         }
         if !(self.replay.speed.is_finite() && self.replay.speed >= 0.0) {
-            return Err(bad("replay.speed", "must be >= 0 (0 = as fast as possible)"));
+            return Err(bad(
+                "replay.speed",
+                "must be >= 0 (0 = as fast as possible)",
+            ));
         }
         positive("decode.recent_address_s", self.decode.recent_address_s)?;
         positive("decode.nominal_rate_hz", self.decode.nominal_rate_hz)?;
@@ -257,26 +263,41 @@ mod tests {
     fn override_is_partial() {
         let c = Config::from_toml_str("[tracker]\nretire_after_s = 42.5\n").unwrap();
         assert_eq!(c.tracker.retire_after_s, 42.5);
-        assert_eq!(c.tracker.channel_capacity, Config::default_config().unwrap().tracker.channel_capacity);
+        assert_eq!(
+            c.tracker.channel_capacity,
+            Config::default_config().unwrap().tracker.channel_capacity
+        );
     }
 
     #[test]
     fn bad_values_name_their_key() {
         let cases = [
-            ("[tracker]\nretire_after_s = -1.0\n", "tracker.retire_after_s"),
+            (
+                "[tracker]\nretire_after_s = -1.0\n",
+                "tracker.retire_after_s",
+            ),
             ("[tracker]\nalgorithm = \"magic\"\n", "tracker.algorithm"),
             ("[server]\nlisten = \"nowhere\"\n", "server.listen"),
-            ("[decode]\nrecent_address_s = \"soon\"\n", "recent_address_s"),
+            (
+                "[decode]\nrecent_address_s = \"soon\"\n",
+                "recent_address_s",
+            ),
             ("[decode]\nbogus_key = 1\n", "bogus_key"),
             (
                 "[[feeds]]\nname = \"a\"\naddr = \"127.0.0.1:30005\"\nformat = \"csv\"\n",
                 "feeds[0].format",
             ),
-            ("[receiver]\nlat_deg = 91.0\nlon_deg = 0.0\n", "receiver.lat_deg"),
+            (
+                "[receiver]\nlat_deg = 91.0\nlon_deg = 0.0\n",
+                "receiver.lat_deg",
+            ),
         ];
         for (text, key) in cases {
             let err = Config::from_toml_str(text).unwrap_err().to_string();
-            assert!(err.contains(key), "{text:?} gave {err:?}, expected it to name {key}");
+            assert!(
+                err.contains(key),
+                "{text:?} gave {err:?}, expected it to name {key}"
+            );
         }
     }
 

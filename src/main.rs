@@ -11,7 +11,10 @@ use std::path::PathBuf;
 use tokio_util::sync::CancellationToken;
 
 #[derive(Parser)]
-#[command(version, about = "Track every aircraft of a Mode S / ADS-B feed and serve the estimates over HTTP")]
+#[command(
+    version,
+    about = "Track every aircraft of a Mode S / ADS-B feed and serve the estimates over HTTP"
+)]
 struct Cli {
     #[command(subcommand)]
     command: Option<Command>,
@@ -107,8 +110,7 @@ fn install_signals(token: CancellationToken) {
 async fn main() -> Result<()> {
     tracing_subscriber::fmt()
         .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_default_env()
-                .unwrap_or_else(|_| "info".into()),
+            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info".into()),
         )
         .with_writer(std::io::stderr)
         .init();
@@ -134,7 +136,11 @@ async fn main() -> Result<()> {
                 } else {
                     ReplayData::File(PathBuf::from(&cfg.replay.file))
                 };
-                tracing::info!(?data, speed = cfg.replay.speed, "no feed configured: replaying");
+                tracing::info!(
+                    ?data,
+                    speed = cfg.replay.speed,
+                    "no feed configured: replaying"
+                );
                 Source::Replay(Replay {
                     data,
                     format: parse_format(&cfg.replay.format)?,

@@ -9,7 +9,9 @@ fn bin() -> Command {
 }
 
 fn fixture(name: &str) -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("fixtures").join(name)
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("fixtures")
+        .join(name)
 }
 
 /// (file, frames in it).
@@ -29,11 +31,22 @@ fn replay_decodes_every_recording() {
             .arg(fixture(name))
             .output()
             .unwrap();
-        assert!(out.status.success(), "{name}: {}", String::from_utf8_lossy(&out.stderr));
+        assert!(
+            out.status.success(),
+            "{name}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
         let stats: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
         assert_eq!(stats["frames"].as_u64(), Some(*frames), "{name}");
-        assert!(stats["positions_accepted"].as_u64().unwrap() > 0, "{name}: {stats}");
-        assert_eq!(stats["track_errors"].as_object().map_or(0, |m| m.len()), 0, "{name}: {stats}");
+        assert!(
+            stats["positions_accepted"].as_u64().unwrap() > 0,
+            "{name}: {stats}"
+        );
+        assert_eq!(
+            stats["track_errors"].as_object().map_or(0, |m| m.len()),
+            0,
+            "{name}: {stats}"
+        );
     }
 }
 
@@ -41,7 +54,11 @@ fn replay_decodes_every_recording() {
 fn inspect_prints_one_block_per_frame() {
     for (name, frames) in RECORDINGS {
         let out = bin().arg("inspect").arg(fixture(name)).output().unwrap();
-        assert!(out.status.success(), "{name}: {}", String::from_utf8_lossy(&out.stderr));
+        assert!(
+            out.status.success(),
+            "{name}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
         let text = String::from_utf8_lossy(&out.stdout);
         let headers = text.lines().filter(|l| l.starts_with("frame ")).count() as u64;
         assert_eq!(headers, *frames, "{name}");
@@ -59,14 +76,34 @@ fn replay_writes_track_lines() {
         .arg(fixture("us-short-flights.csv"))
         .output()
         .unwrap();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let stats: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     let text = std::fs::read_to_string(&out_path).unwrap();
-    let lines: Vec<serde_json::Value> = text.lines().map(|l| serde_json::from_str(l).unwrap()).collect();
+    let lines: Vec<serde_json::Value> = text
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
     // One line per tracker update.
     assert_eq!(lines.len() as u64, stats["track_updates"].as_u64().unwrap());
     for l in &lines {
-        for key in ["t", "icao", "lat", "lon", "alt_m", "ve", "vn", "vu", "mode", "filter", "pos_sigma_m", "diverging"] {
+        for key in [
+            "t",
+            "icao",
+            "lat",
+            "lon",
+            "alt_m",
+            "ve",
+            "vn",
+            "vu",
+            "mode",
+            "filter",
+            "pos_sigma_m",
+            "diverging",
+        ] {
             assert!(l.get(key).is_some(), "line lacks {key}: {l}");
         }
     }
@@ -82,12 +119,24 @@ fn replay_writes_track_lines() {
 
 #[test]
 fn bad_arguments_are_refused_clearly() {
-    let out = bin().args(["replay", "--speed", "fast"]).arg(fixture("us-short-flights.csv")).output().unwrap();
+    let out = bin()
+        .args(["replay", "--speed", "fast"])
+        .arg(fixture("us-short-flights.csv"))
+        .output()
+        .unwrap();
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("--speed"));
-    let out = bin().args(["replay", "--tracker", "magic"]).arg(fixture("us-short-flights.csv")).output().unwrap();
+    let out = bin()
+        .args(["replay", "--tracker", "magic"])
+        .arg(fixture("us-short-flights.csv"))
+        .output()
+        .unwrap();
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("tracker.algorithm"));
-    let out = bin().args(["replay"]).arg("/nonexistent/file.beast").output().unwrap();
+    let out = bin()
+        .args(["replay"])
+        .arg("/nonexistent/file.beast")
+        .output()
+        .unwrap();
     assert!(!out.status.success());
 }

@@ -26,9 +26,25 @@ async fn us_short_flights_end_to_end() {
     assert_eq!(tracks.len(), 7, "{tracks:?}");
     for t in tracks {
         for key in [
-            "t", "icao", "lat", "lon", "alt_m", "ve", "vn", "vu", "mode", "filter",
-            "pos_sigma_m", "diverging", "callsign", "ground_speed_mps", "track_deg",
-            "vertical_rate_mps", "mode_probabilities", "messages", "last_seen",
+            "t",
+            "icao",
+            "lat",
+            "lon",
+            "alt_m",
+            "ve",
+            "vn",
+            "vu",
+            "mode",
+            "filter",
+            "pos_sigma_m",
+            "diverging",
+            "callsign",
+            "ground_speed_mps",
+            "track_deg",
+            "vertical_rate_mps",
+            "mode_probabilities",
+            "messages",
+            "last_seen",
         ] {
             assert!(t.get(key).is_some(), "track lacks {key}: {t}");
         }
@@ -37,7 +53,10 @@ async fn us_short_flights_end_to_end() {
         assert!(sigma > 0.0 && sigma < 200.0, "pos_sigma_m {sigma}");
         // The recording is over the United States.
         let (lat, lon) = (t["lat"].as_f64().unwrap(), t["lon"].as_f64().unwrap());
-        assert!((24.0..50.0).contains(&lat) && (-125.0..-66.0).contains(&lon), "{lat},{lon}");
+        assert!(
+            (24.0..50.0).contains(&lat) && (-125.0..-66.0).contains(&lon),
+            "{lat},{lon}"
+        );
     }
 
     // One aircraft by address, and the error cases.
@@ -45,7 +64,8 @@ async fn us_short_flights_end_to_end() {
     let (code, one) = get_json(d.addr, &format!("/api/v1/tracks/{icao}")).await;
     assert_eq!(code, 200);
     assert_eq!(one["icao"], icao.as_str());
-    let (code, one_upper) = get_json(d.addr, &format!("/api/v1/tracks/{}", icao.to_uppercase())).await;
+    let (code, one_upper) =
+        get_json(d.addr, &format!("/api/v1/tracks/{}", icao.to_uppercase())).await;
     assert_eq!(code, 200);
     assert_eq!(one_upper["icao"], icao.as_str());
     for (path, want) in [
@@ -61,7 +81,10 @@ async fn us_short_flights_end_to_end() {
     ] {
         let (code, body) = get_json(d.addr, path).await;
         assert_eq!(code, want, "{path}: {body}");
-        assert!(body["error"].as_str().is_some_and(|e| !e.is_empty()), "{path}: {body}");
+        assert!(
+            body["error"].as_str().is_some_and(|e| !e.is_empty()),
+            "{path}: {body}"
+        );
     }
 
     // Filters: a box around the whole US keeps all, one over Europe none; mode=CV keeps all.
@@ -92,7 +115,15 @@ async fn afr34zg_whole_flight() {
     // pyModeS: 57,793 frames: DF0 15,691, DF4 4,296, DF5 1,031, DF16 810, DF17 15,573,
     // DF20 7,770, DF21 12,622; one aircraft, 393322.
     assert_eq!(stats["frames"], 57_793);
-    for (df, n) in [("0", 15_691), ("4", 4_296), ("5", 1_031), ("16", 810), ("17", 15_573), ("20", 7_770), ("21", 12_622)] {
+    for (df, n) in [
+        ("0", 15_691),
+        ("4", 4_296),
+        ("5", 1_031),
+        ("16", 810),
+        ("17", 15_573),
+        ("20", 7_770),
+        ("21", 12_622),
+    ] {
         assert_eq!(stats["frames_by_df"][df], n, "DF{df}");
     }
     assert_eq!(stats["tracks_created"], 1);
@@ -101,9 +132,18 @@ async fn afr34zg_whole_flight() {
     assert_eq!(t["callsign"], "AFR34ZG");
     // Every frame of the file is this aircraft's, and none comes from an unknown address
     // (the DF0/4/5/16/20/21 replies are admitted because DF17 was heard first).
-    assert_eq!(t["messages"].as_u64().unwrap(), 57_793 - stats["frames_skipped"].as_object().map_or(0, |m| m.values().map(|v| v.as_u64().unwrap()).sum()));
+    assert_eq!(
+        t["messages"].as_u64().unwrap(),
+        57_793
+            - stats["frames_skipped"]
+                .as_object()
+                .map_or(0, |m| m.values().map(|v| v.as_u64().unwrap()).sum())
+    );
     // The flight ends at Toulouse-Blagnac (43.629 N, 1.364 E), on the ground.
     let (lat, lon) = (t["lat"].as_f64().unwrap(), t["lon"].as_f64().unwrap());
-    assert!((lat - 43.629).abs() < 0.03 && (lon - 1.364).abs() < 0.04, "{lat},{lon}");
+    assert!(
+        (lat - 43.629).abs() < 0.03 && (lon - 1.364).abs() < 0.04,
+        "{lat},{lon}"
+    );
     d.stop().await;
 }

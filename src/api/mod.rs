@@ -33,7 +33,13 @@ impl IntoResponse for ApiError {
             ApiError::BadRequest(_) => StatusCode::BAD_REQUEST,
             ApiError::NotFound(_) => StatusCode::NOT_FOUND,
         };
-        (status, Json(ErrorBody { error: self.to_string() })).into_response()
+        (
+            status,
+            Json(ErrorBody {
+                error: self.to_string(),
+            }),
+        )
+            .into_response()
     }
 }
 
@@ -227,7 +233,15 @@ mod tests {
 
     #[test]
     fn bad_bboxes_are_refused() {
-        for s in ["", "1,2,3", "1,2,3,4,5", "a,b,c,d", "50,0,40,1", "0,0,95,1", "0,-190,1,1"] {
+        for s in [
+            "",
+            "1,2,3",
+            "1,2,3,4,5",
+            "a,b,c,d",
+            "50,0,40,1",
+            "0,0,95,1",
+            "0,-190,1,1",
+        ] {
             assert!(BBox::parse(s).is_err(), "{s:?} accepted");
         }
     }

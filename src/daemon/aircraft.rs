@@ -112,7 +112,7 @@ impl Aircraft {
     pub fn new(icao: Icao, cfg: &AircraftConfig) -> Self {
         Self {
             icao,
-            cpr: CprDecoder::new(cfg.cpr.clone()),
+            cpr: CprDecoder::new(cfg.cpr),
             tracker: (cfg.tracker)(&cfg.tracker_config),
             frame: None,
             callsign: None,
@@ -183,7 +183,13 @@ impl Aircraft {
                     self.baro_alt_ft = alt_ft;
                 }
                 let fix = self.cpr.airborne(t, cpr);
-                self.position_measurement(t, fix, alt_ft.map(|a| f64::from(a) * FT_TO_M), type_code, stats)
+                self.position_measurement(
+                    t,
+                    fix,
+                    alt_ft.map(|a| f64::from(a) * FT_TO_M),
+                    type_code,
+                    stats,
+                )
             }
             Message::SurfacePosition {
                 type_code,
@@ -241,7 +247,9 @@ impl Aircraft {
         stats: &Stats,
     ) -> Option<Measurement> {
         let (lat, lon) = match fix {
-            PositionFix::Accepted { lat_deg, lon_deg, .. } => (lat_deg, lon_deg),
+            PositionFix::Accepted {
+                lat_deg, lon_deg, ..
+            } => (lat_deg, lon_deg),
             PositionFix::Pending => return None,
             PositionFix::Rejected(reason) => {
                 self.positions_rejected += 1;

@@ -28,7 +28,13 @@ pub struct ModeProbabilities {
 impl From<[f64; 5]> for ModeProbabilities {
     fn from(p: [f64; 5]) -> Self {
         let [cv, ca, ct, ch, chca] = p;
-        Self { cv, ca, ct, ch, chca }
+        Self {
+            cv,
+            ca,
+            ct,
+            ch,
+            chca,
+        }
     }
 }
 

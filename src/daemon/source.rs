@@ -100,7 +100,15 @@ pub fn run_replay(
                 .frames
                 .fetch_add(frames.len() as u64, Ordering::Relaxed);
             if replay.speed > 0.0 {
-                send_paced(&frames, replay.speed, start_wall, &mut start_feed, tx, &feed_name, shutdown);
+                send_paced(
+                    &frames,
+                    replay.speed,
+                    start_wall,
+                    &mut start_feed,
+                    tx,
+                    &feed_name,
+                    shutdown,
+                );
             } else if !frames.is_empty() {
                 let batch = FrameBatch {
                     feed: feed_name.clone(),

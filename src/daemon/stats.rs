@@ -82,8 +82,16 @@ impl Stats {
             feeds: Mutex::new(Vec::new()),
             registry: Registry::default(),
         };
-        registry.register("frames", "Frames received from the feeds", s.frames_in.clone());
-        registry.register("frames_by_df", "Frames by downlink format", s.frames_by_df.clone());
+        registry.register(
+            "frames",
+            "Frames received from the feeds",
+            s.frames_in.clone(),
+        );
+        registry.register(
+            "frames_by_df",
+            "Frames by downlink format",
+            s.frames_by_df.clone(),
+        );
         registry.register(
             "frames_by_type_code",
             "DF17/18 frames by type code",
@@ -94,14 +102,42 @@ impl Stats {
             "Frames the decoder refused, by reason",
             s.frames_skipped.clone(),
         );
-        registry.register("crc_fixed", "DF17/18 frames repaired by single-bit correction", s.crc_fixed.clone());
-        registry.register("positions_accepted", "CPR positions handed to the tracker", s.positions_accepted.clone());
-        registry.register("positions_rejected", "CPR positions refused, by reason", s.positions_rejected.clone());
+        registry.register(
+            "crc_fixed",
+            "DF17/18 frames repaired by single-bit correction",
+            s.crc_fixed.clone(),
+        );
+        registry.register(
+            "positions_accepted",
+            "CPR positions handed to the tracker",
+            s.positions_accepted.clone(),
+        );
+        registry.register(
+            "positions_rejected",
+            "CPR positions refused, by reason",
+            s.positions_rejected.clone(),
+        );
         registry.register("track_updates", "Tracker updates", s.track_updates.clone());
-        registry.register("track_errors", "Tracker steps refused, by reason", s.track_errors.clone());
-        registry.register("tracks_active", "Aircraft tracked now", s.tracks_active.clone());
-        registry.register("tracks_created", "Aircraft tasks spawned", s.tracks_created.clone());
-        registry.register("tracks_retired", "Aircraft tasks retired after silence", s.tracks_retired.clone());
+        registry.register(
+            "track_errors",
+            "Tracker steps refused, by reason",
+            s.track_errors.clone(),
+        );
+        registry.register(
+            "tracks_active",
+            "Aircraft tracked now",
+            s.tracks_active.clone(),
+        );
+        registry.register(
+            "tracks_created",
+            "Aircraft tasks spawned",
+            s.tracks_created.clone(),
+        );
+        registry.register(
+            "tracks_retired",
+            "Aircraft tasks retired after silence",
+            s.tracks_retired.clone(),
+        );
         registry.register(
             "channel_drops",
             "Batches dropped because an aircraft channel was full",
@@ -191,13 +227,19 @@ impl Stats {
     pub fn snapshot(&self) -> StatsSnapshot {
         let by_df = (0..32)
             .filter_map(|df| {
-                let v = self.frames_by_df.get_or_create(&vec![("df", df.to_string())]).get();
+                let v = self
+                    .frames_by_df
+                    .get_or_create(&vec![("df", df.to_string())])
+                    .get();
                 (v > 0).then(|| (df.to_string(), v))
             })
             .collect();
         let by_tc = (0..32)
             .filter_map(|tc| {
-                let v = self.frames_by_tc.get_or_create(&vec![("tc", tc.to_string())]).get();
+                let v = self
+                    .frames_by_tc
+                    .get_or_create(&vec![("tc", tc.to_string())])
+                    .get();
                 (v > 0).then(|| (tc.to_string(), v))
             })
             .collect();

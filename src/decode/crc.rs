@@ -17,7 +17,11 @@ const fn build_table() -> [u32; 256] {
         let mut c = (i as u32) << 16;
         let mut bit = 0;
         while bit < 8 {
-            c = if c & 0x80_0000 != 0 { (c << 1) ^ GENERATOR } else { c << 1 };
+            c = if c & 0x80_0000 != 0 {
+                (c << 1) ^ GENERATOR
+            } else {
+                c << 1
+            };
             bit += 1;
         }
         table[i] = c & 0xFF_FFFF;
@@ -101,7 +105,10 @@ mod tests {
         let data = hex("8DADA5265851E6616376C2");
         assert_eq!(crc24(&data), bitwise(&data));
         for n in 0..=255u8 {
-            assert_eq!(crc24(&[n, n.wrapping_mul(7), 3]), bitwise(&[n, n.wrapping_mul(7), 3]));
+            assert_eq!(
+                crc24(&[n, n.wrapping_mul(7), 3]),
+                bitwise(&[n, n.wrapping_mul(7), 3])
+            );
         }
     }
 }

@@ -88,6 +88,43 @@ fn verdict(bytes: &[u8], df: u8) -> String {
     }
 }
 
+/// `adsb-tracker inspect FILE`: a header line (`frame N`) and the full decode of
+/// every frame of a recording, whatever its DF. Never stops on a bad frame.
+pub fn inspect_file(
+    path: &std::path::Path,
+    format: Option<crate::feed::Format>,
+    limit: Option<u64>,
+    out: &mut dyn std::io::Write,
+) -> Result<(), crate::feed::FeedError> {
+    let io = |source| crate::feed::FeedError::Io {
+        path: path.to_path_buf(),
+        source,
+    };
+    let mut reader = crate::feed::replay::FileReader::open(path, format, 1000.0)?;
+    let mut frames = Vec::new();
+    let mut n = 0u64;
+    while reader.next_batch(&mut frames)? {
+        for f in &frames {
+            if limit.is_some_and(|l| n >= l) {
+                return Ok(());
+            }
+            n += 1;
+            writeln!(out, "frame {n}").map_err(io)?;
+            for line in describe(f).lines() {
+                writeln!(out, "    {line}").map_err(io)?;
+            }
+        }
+    }
+    let s = reader.stats();
+    writeln!(
+        out,
+        "# {} frames; {} bad lines, {} garbage bytes, {} bad frames, {} truncated tail bytes",
+        s.frames, s.bad_lines, s.garbage_bytes, s.bad_frames, s.truncated_tail_bytes
+    )
+    .map_err(io)?;
+    Ok(())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -162,41 +199,4 @@ mod tests {
             }
         }
     }
-}
-
-/// `adsb-tracker inspect FILE`: a header line (`frame N`) and the full decode of
-/// every frame of a recording, whatever its DF. Never stops on a bad frame.
-pub fn inspect_file(
-    path: &std::path::Path,
-    format: Option<crate::feed::Format>,
-    limit: Option<u64>,
-    out: &mut dyn std::io::Write,
-) -> Result<(), crate::feed::FeedError> {
-    let io = |source| crate::feed::FeedError::Io {
-        path: path.to_path_buf(),
-        source,
-    };
-    let mut reader = crate::feed::replay::FileReader::open(path, format, 1000.0)?;
-    let mut frames = Vec::new();
-    let mut n = 0u64;
-    while reader.next_batch(&mut frames)? {
-        for f in &frames {
-            if limit.is_some_and(|l| n >= l) {
-                return Ok(());
-            }
-            n += 1;
-            writeln!(out, "frame {n}").map_err(io)?;
-            for line in describe(f).lines() {
-                writeln!(out, "    {line}").map_err(io)?;
-            }
-        }
-    }
-    let s = reader.stats();
-    writeln!(
-        out,
-        "# {} frames; {} bad lines, {} garbage bytes, {} bad frames, {} truncated tail bytes",
-        s.frames, s.bad_lines, s.garbage_bytes, s.bad_frames, s.truncated_tail_bytes
-    )
-    .map_err(io)?;
-    Ok(())
 }

@@ -37,7 +37,10 @@ pub fn parse_truth(text: &str, path: &str) -> Result<BTreeMap<Icao, TruthTrack>,
             return Err(EvalError::Line {
                 path: path.into(),
                 line: 1,
-                problem: format!("expected header {TRUTH_HEADER:?}, got {:?}", other.map(|(_, h)| h)),
+                problem: format!(
+                    "expected header {TRUTH_HEADER:?}, got {:?}",
+                    other.map(|(_, h)| h)
+                ),
             })
         }
     }
@@ -73,11 +76,17 @@ pub fn parse_truth(text: &str, path: &str) -> Result<BTreeMap<Icao, TruthTrack>,
         let icao: Icao = icao.parse().map_err(bad)?;
         per.entry(icao).or_default().push(sample);
     }
-    Ok(per.into_iter().map(|(k, v)| (k, TruthTrack::new(v))).collect())
+    Ok(per
+        .into_iter()
+        .map(|(k, v)| (k, TruthTrack::new(v)))
+        .collect())
 }
 
 /// Parses `--tracks-out` lines into each aircraft's estimates, in file order.
-pub fn parse_tracks(text: &str, path: &str) -> Result<BTreeMap<Icao, Vec<EstimateSample>>, EvalError> {
+pub fn parse_tracks(
+    text: &str,
+    path: &str,
+) -> Result<BTreeMap<Icao, Vec<EstimateSample>>, EvalError> {
     let mut per: BTreeMap<Icao, Vec<EstimateSample>> = BTreeMap::new();
     for (i, line) in text.lines().enumerate() {
         if line.trim().is_empty() {
@@ -147,9 +156,12 @@ mod tests {
         let track = &t[&Icao(0xabc123)];
         assert_eq!(track.samples().len(), 2);
         assert_eq!(track.samples()[1].mode, FlightMode::Ct);
-        let err = parse_truth(&format!("{TRUTH_HEADER}\n0.0,abc123,1.0,2.0,3.0,4.0,5.0,6.0,XX\n"), "x.csv")
-            .unwrap_err()
-            .to_string();
+        let err = parse_truth(
+            &format!("{TRUTH_HEADER}\n0.0,abc123,1.0,2.0,3.0,4.0,5.0,6.0,XX\n"),
+            "x.csv",
+        )
+        .unwrap_err()
+        .to_string();
         assert!(err.contains("x.csv:2"), "{err}");
         assert!(parse_truth("t,lat\n", "x.csv").is_err());
     }
@@ -162,6 +174,9 @@ mod tests {
         assert_eq!(e.mode, FlightMode::Ct);
         assert_eq!(e.pos_cov_en, Some([[4.0, 1.0], [1.0, 9.0]]));
         assert!(e.vel_cov_en.is_none());
-        assert!(parse_tracks("{\"t\":1}", "t.jsonl").unwrap_err().to_string().contains("t.jsonl:1"));
+        assert!(parse_tracks("{\"t\":1}", "t.jsonl")
+            .unwrap_err()
+            .to_string()
+            .contains("t.jsonl:1"));
     }
 }

@@ -202,7 +202,11 @@ fn nees(e: &Vector2<f64>, cov: &[[f64; 2]; 2]) -> Option<f64> {
 
 impl Scores {
     /// Scores one aircraft's estimates (in time order) and raw positions against its truth.
-    pub fn score_track(truth: &TruthTrack, estimates: &[EstimateSample], raw: &[RawPosition]) -> Self {
+    pub fn score_track(
+        truth: &TruthTrack,
+        estimates: &[EstimateSample],
+        raw: &[RawPosition],
+    ) -> Self {
         let mut s = Scores::default();
         let mut last_label: Option<FlightMode> = None;
         for est in estimates {
@@ -267,9 +271,7 @@ impl Scores {
             if mode == FlightMode::Cv {
                 continue;
             }
-            let end = onsets
-                .get(i + 1)
-                .map_or(f64::INFINITY, |&(t1, _)| t1);
+            let end = onsets.get(i + 1).map_or(f64::INFINITY, |&(t1, _)| t1);
             match estimates
                 .iter()
                 .find(|e| e.t >= t0 && e.t < end && e.mode == mode)
@@ -295,7 +297,8 @@ impl Scores {
                 *mine.entry(e.clone()).or_default() += n;
             }
         }
-        self.detection_delays_s.extend_from_slice(&o.detection_delays_s);
+        self.detection_delays_s
+            .extend_from_slice(&o.detection_delays_s);
         self.missed_onsets += o.missed_onsets;
         self.false_switches += o.false_switches;
         self.cv_updates += o.cv_updates;
@@ -375,7 +378,10 @@ mod tests {
 
     #[test]
     fn interpolation_and_errors() {
-        let truth = TruthTrack::new(vec![sample(0.0, 0.0, FlightMode::Cv), sample(10.0, 1000.0, FlightMode::Ct)]);
+        let truth = TruthTrack::new(vec![
+            sample(0.0, 0.0, FlightMode::Cv),
+            sample(10.0, 1000.0, FlightMode::Ct),
+        ]);
         let at = truth.at(5.0).unwrap();
         assert!((at.lon * 111_319.490_793 - 500.0).abs() < 1e-6);
         assert_eq!(at.mode, FlightMode::Cv);
@@ -398,7 +404,11 @@ mod tests {
         let s = Scores::score_track(&truth, &[est], &[]);
         let all = &s.estimates["all"];
         // 1 degree of latitude at the equator is 110,574 m (WGS-84 meridian arc).
-        assert!((all.pos_rmse().unwrap() - 30.0).abs() < 0.01, "{:?}", all.pos_rmse());
+        assert!(
+            (all.pos_rmse().unwrap() - 30.0).abs() < 0.01,
+            "{:?}",
+            all.pos_rmse()
+        );
         assert!((all.vel_rmse().unwrap() - 3.0).abs() < 1e-9);
         // NEES = 30^2 / 900 = 1.
         assert!((all.anees_pos().unwrap() - 1.0).abs() < 1e-3);
@@ -409,7 +419,17 @@ mod tests {
     fn detection_delay_and_false_switches() {
         let truth = TruthTrack::new(
             (0..=20)
-                .map(|i| sample(f64::from(i), 100.0 * f64::from(i), if i >= 10 { FlightMode::Ct } else { FlightMode::Cv }))
+                .map(|i| {
+                    sample(
+                        f64::from(i),
+                        100.0 * f64::from(i),
+                        if i >= 10 {
+                            FlightMode::Ct
+                        } else {
+                            FlightMode::Cv
+                        },
+                    )
+                })
                 .collect(),
         );
         let est = |t: f64, mode| EstimateSample {
@@ -426,10 +446,18 @@ mod tests {
             cpu_ns: None,
         };
         use FlightMode::*;
-        let e: Vec<_> = [(1.0, Cv), (2.0, Ct), (3.0, Cv), (4.0, Cv), (10.5, Cv), (12.5, Ct), (13.0, Ct)]
-            .into_iter()
-            .map(|(t, m)| est(t, m))
-            .collect();
+        let e: Vec<_> = [
+            (1.0, Cv),
+            (2.0, Ct),
+            (3.0, Cv),
+            (4.0, Cv),
+            (10.5, Cv),
+            (12.5, Ct),
+            (13.0, Ct),
+        ]
+        .into_iter()
+        .map(|(t, m)| est(t, m))
+        .collect();
         let s = Scores::score_track(&truth, &e, &[]);
         assert_eq!(s.detection_delays_s, vec![2.5]);
         assert_eq!(s.false_switches, 1);

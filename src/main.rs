@@ -52,6 +52,10 @@ enum Command {
         /// Tracker algorithm (overrides tracker.algorithm).
         #[arg(long)]
         tracker: Option<String>,
+        /// Frames per second of feed time for frames without a timestamp (`*hex;` AVR);
+        /// overrides decode.nominal_rate_hz.
+        #[arg(long)]
+        nominal_rate: Option<f64>,
     },
     /// Print a full human-readable decode of every frame of a recording.
     Inspect {
@@ -175,12 +179,16 @@ async fn main() -> Result<()> {
             serve,
             config,
             tracker,
+            nominal_rate,
         } => {
             let mut cfg = load_config(config.as_ref())?;
             if let Some(t) = tracker {
                 cfg.tracker.algorithm = t;
-                cfg.validate()?;
             }
+            if let Some(r) = nominal_rate {
+                cfg.decode.nominal_rate_hz = r;
+            }
+            cfg.validate()?;
             let speed = match speed.as_str() {
                 "max" => 0.0,
                 s => match s.parse::<f64>() {

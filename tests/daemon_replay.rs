@@ -147,3 +147,114 @@ async fn afr34zg_whole_flight() {
     );
     d.stop().await;
 }
+
+/// Runs a replay of `path` to its end without HTTP and returns the final stats.
+async fn replay_to_end(path: &std::path::Path) -> adsb_tracker::daemon::RunSummary {
+    use adsb_tracker::daemon::source::{Replay, ReplayData};
+    use adsb_tracker::daemon::{run, RunOptions, Source};
+    let config = Config::default_config().unwrap();
+    let opts = RunOptions {
+        source: Source::Replay(Replay {
+            data: ReplayData::File(path.to_path_buf()),
+            format: Some(adsb_tracker::feed::Format::Beast),
+            speed: 0.0,
+            loop_: false,
+            nominal_rate_hz: 1000.0,
+            loop_gap_s: 0.0,
+            progress: false,
+        }),
+        listener: None,
+        tracks_out: None,
+        exit_at_end: true,
+    };
+    run(config, opts, tokio_util::sync::CancellationToken::new()).await.unwrap()
+}
+
+/// Byte ranges of each Beast frame (walking the 0x1a escapes, independently of the parser).
+fn beast_frames(data: &[u8]) -> Vec<std::ops::Range<usize>> {
+    let mut out = Vec::new();
+    let mut i = 0;
+    while i + 1 < data.len() {
+        let n = match data[i + 1] {
+            b'1' => 2,
+            b'2' => 7,
+            _ => 14,
+        };
+        let mut j = i + 2;
+        for _ in 0..(7 + n) {
+            j += if data[j] == 0x1a { 2 } else { 1 };
+        }
+        out.push(i..j);
+        i = j;
+    }
+    out
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn garbage_corruption_and_a_truncated_tail_lose_no_good_frame() {
+    use rand::{Rng, SeedableRng};
+    let clean = std::fs::read(common::fixture("toulouse-sample.beast")).unwrap();
+    let dir = std::env::temp_dir().join(format!("adsb-garbage-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let clean_path = dir.join("clean.beast");
+    std::fs::write(&clean_path, &clean).unwrap();
+    let reference = replay_to_end(&clean_path).await.stats;
+    assert_eq!(reference.frames, 239);
+
+    // Junk (never 0x1a) between frames, one bit flipped in the data of every 3rd long
+    // frame whose payload has no 0x1a near the flip, and the last frame cut in half.
+    let mut rng = rand::rngs::StdRng::seed_from_u64(7);
+    let frames = beast_frames(&clean);
+    let mut dirty = Vec::new();
+    let mut junk = 0u64;
+    let mut flipped = 0u64;
+    let mut long = 0u64;
+    for (k, r) in frames.iter().enumerate() {
+        let mut f = clean[r.clone()].to_vec();
+        let last = k + 1 == frames.len();
+        // Flip a bit of the ME field (byte 12 of the frame, after type, counter and signal),
+        // only in frames without escapes, so the framing stays the same.
+        let is_long = f[1] == b'3';
+        long += u64::from(is_long);
+        if is_long && long % 3 == 0 && f.len() == 2 + 6 + 1 + 14 && f[2 + 7 + 8] != 0x1a {
+            f[2 + 7 + 8] ^= 0x04;
+            if f[2 + 7 + 8] != 0x1a {
+                flipped += 1;
+            } else {
+                f[2 + 7 + 8] ^= 0x04;
+            }
+        }
+        if last {
+            f.truncate(f.len() / 2);
+        }
+        dirty.extend_from_slice(&f);
+        if !last {
+            let n = rng.gen_range(0..20);
+            for _ in 0..n {
+                let b: u8 = rng.gen();
+                dirty.push(if b == 0x1a { 0x1b } else { b });
+            }
+            junk += n;
+        }
+    }
+    let dirty_path = dir.join("dirty.beast");
+    std::fs::write(&dirty_path, &dirty).unwrap();
+    let got = replay_to_end(&dirty_path).await;
+    let parse = got.replay.unwrap();
+    assert_eq!(parse.frames, 238, "every complete frame parsed");
+    assert_eq!(parse.garbage_bytes, junk, "garbage counted exactly");
+    assert!(parse.truncated_tail_bytes > 0);
+    let s = got.stats;
+    assert_eq!(s.frames, 238);
+    // Each flipped DF17 frame was repaired by the single-bit correction (on by default).
+    assert!(flipped >= 5, "test flips too few frames: {flipped}");
+    let df17_flipped = s.crc_fixed;
+    assert!(df17_flipped > 0 && df17_flipped <= flipped, "{df17_flipped} of {flipped}");
+    // Every good frame was used: the aircraft and the decoded DF counts are those of the clean
+    // run, minus what the cut frame carried.
+    assert_eq!(s.tracks_created, reference.tracks_created);
+    let total = |m: &std::collections::BTreeMap<String, u64>| m.values().sum::<u64>();
+    assert_eq!(total(&s.frames_by_df), total(&reference.frames_by_df) - 1);
+    assert!(s.positions_accepted + 1 >= reference.positions_accepted);
+    std::fs::remove_dir_all(&dir).ok();
+}

@@ -57,6 +57,44 @@ enum Command {
         #[arg(long)]
         nominal_rate: Option<f64>,
     },
+    /// Simulate a scenario: writes PREFIX.beast, PREFIX.avr and PREFIX.truth.csv.
+    Simulate {
+        /// A built-in scenario name (paper000..paper003, departure, approach) or a TOML file.
+        scenario: String,
+        #[arg(long)]
+        out: PathBuf,
+        /// Seed (default: the scenario's).
+        #[arg(long)]
+        seed: Option<u64>,
+    },
+    /// Score trackers against simulated truth: Monte Carlo runs of a scenario
+    /// (`--scenario`), or an existing `--tracks-out` file against a truth CSV
+    /// (`--truth` and `--tracks`).
+    Evaluate {
+        #[arg(long, conflicts_with_all = ["truth", "tracks"])]
+        scenario: Option<String>,
+        #[arg(long, default_value_t = 100)]
+        runs: u64,
+        /// Comma-separated tracker names.
+        #[arg(long, default_value = "kalman-cv")]
+        trackers: String,
+        /// Seed of the first run (run k uses seed + k).
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        #[arg(long, requires = "tracks")]
+        truth: Option<PathBuf>,
+        #[arg(long, requires = "truth")]
+        tracks: Option<PathBuf>,
+        /// The recording the tracks came from: its decoded positions give the raw-measurement
+        /// errors to compare with (with --truth/--tracks).
+        #[arg(long, requires = "tracks")]
+        frames: Option<PathBuf>,
+        /// Directory for the JSON results and the SVG plots.
+        #[arg(long, default_value = "evaluation")]
+        out: PathBuf,
+        #[arg(long)]
+        config: Option<PathBuf>,
+    },
     /// Print a full human-readable decode of every frame of a recording.
     Inspect {
         file: PathBuf,
@@ -108,6 +146,86 @@ fn install_signals(token: CancellationToken) {
         tracing::info!("shutting down");
         token.cancel();
     });
+}
+
+/// `evaluate`: Monte Carlo on a scenario, or scoring an existing tracks file.
+#[allow(clippy::too_many_arguments)]
+fn evaluate(
+    cfg: &Config,
+    scenario: Option<String>,
+    runs: u64,
+    trackers: &str,
+    seed: u64,
+    truth: Option<PathBuf>,
+    tracks: Option<PathBuf>,
+    frames: Option<PathBuf>,
+    out: &std::path::Path,
+) -> Result<()> {
+    use adsb_tracker::eval::{bench, io, plot, report};
+    let (title, results) = match (scenario, truth, tracks) {
+        (Some(name), None, None) => {
+            let sc = adsb_tracker::sim::load_scenario(&name)?;
+            let names: Vec<String> = trackers.split(',').map(|s| s.trim().to_string()).collect();
+            for n in &names {
+                if !adsb_tracker::config::ALGORITHMS.contains(&n.as_str()) {
+                    bail!(
+                        "--trackers: unknown {n:?}; expected some of {}",
+                        adsb_tracker::config::ALGORITHMS.join(", ")
+                    );
+                }
+            }
+            if runs == 0 {
+                bail!("--runs must be at least 1");
+            }
+            let title = format!("{name}, {runs} runs");
+            let exp = bench::monte_carlo(&sc, &names, runs, seed, cfg, &out.join("work"))?;
+            let _ = std::fs::remove_dir_all(out.join("work"));
+            let plots =
+                plot::plot_run(&out.join(&name), &name, &exp.first_truth, &exp.first_traces)
+                    .map_err(anyhow::Error::msg)?;
+            for p in plots {
+                eprintln!("wrote {}", p.display());
+            }
+            (title, exp.results)
+        }
+        (None, Some(truth), Some(tracks)) => {
+            let t = io::parse_truth(&io::read(&truth)?, &truth.display().to_string())?;
+            let e = io::parse_tracks(&io::read(&tracks)?, &tracks.display().to_string())?;
+            // Raw positions: the recording's frames through the daemon's decode and CPR.
+            let raw = match &frames {
+                Some(f) => {
+                    bench::track_frames(&bench::read_frames(f, None)?, cfg, &cfg.tracker.algorithm)
+                        .raw
+                }
+                None => Default::default(),
+            };
+            let trace = bench::RunTrace { estimates: e, raw };
+            let scores = bench::score_trace(&t, &trace);
+            let stem = tracks
+                .file_stem()
+                .map_or("tracks".to_string(), |s| s.to_string_lossy().to_string());
+            let plots = plot::plot_run(&out.join(&stem), &stem, &t, &[(stem.clone(), trace)])
+                .map_err(anyhow::Error::msg)?;
+            for p in plots {
+                eprintln!("wrote {}", p.display());
+            }
+            (
+                format!("{} against {}", tracks.display(), truth.display()),
+                vec![report::TrackerResult {
+                    tracker: stem,
+                    runs: 1,
+                    scores,
+                }],
+            )
+        }
+        _ => bail!("evaluate needs --scenario NAME, or --truth FILE and --tracks FILE"),
+    };
+    print!("{}", report::markdown(&title, &results));
+    let json_path = out.join("results.json");
+    std::fs::write(&json_path, serde_json::to_string_pretty(&results)?)
+        .with_context(|| format!("writing {}", json_path.display()))?;
+    eprintln!("wrote {}", json_path.display());
+    Ok(())
 }
 
 #[tokio::main]
@@ -243,6 +361,33 @@ async fn main() -> Result<()> {
             if let Some(p) = summary.replay {
                 eprintln!("parser: {}", serde_json::to_string(&p)?);
             }
+        }
+        Command::Simulate {
+            scenario,
+            out,
+            seed,
+        } => {
+            let sc = adsb_tracker::sim::load_scenario(&scenario)?;
+            let seed = seed.unwrap_or(sc.settings.seed);
+            let summary = adsb_tracker::sim::simulate(&sc, seed, &out)?;
+            println!("{}", serde_json::to_string_pretty(&summary)?);
+        }
+        Command::Evaluate {
+            scenario,
+            runs,
+            trackers,
+            seed,
+            truth,
+            tracks,
+            frames,
+            out,
+            config,
+        } => {
+            let cfg = load_config(config.as_ref())?;
+            std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
+            evaluate(
+                &cfg, scenario, runs, &trackers, seed, truth, tracks, frames, &out,
+            )?;
         }
         Command::Inspect {
             file,

@@ -167,7 +167,9 @@ async fn replay_to_end(path: &std::path::Path) -> adsb_tracker::daemon::RunSumma
         tracks_out: None,
         exit_at_end: true,
     };
-    run(config, opts, tokio_util::sync::CancellationToken::new()).await.unwrap()
+    run(config, opts, tokio_util::sync::CancellationToken::new())
+        .await
+        .unwrap()
 }
 
 /// Byte ranges of each Beast frame (walking the 0x1a escapes, independently of the parser).
@@ -249,7 +251,10 @@ async fn garbage_corruption_and_a_truncated_tail_lose_no_good_frame() {
     // Each flipped DF17 frame was repaired by the single-bit correction (on by default).
     assert!(flipped >= 5, "test flips too few frames: {flipped}");
     let df17_flipped = s.crc_fixed;
-    assert!(df17_flipped > 0 && df17_flipped <= flipped, "{df17_flipped} of {flipped}");
+    assert!(
+        df17_flipped > 0 && df17_flipped <= flipped,
+        "{df17_flipped} of {flipped}"
+    );
     // Every good frame was used: the aircraft and the decoded DF counts are those of the clean
     // run, minus what the cut frame carried.
     assert_eq!(s.tracks_created, reference.tracks_created);

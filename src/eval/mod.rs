@@ -3,6 +3,8 @@
 //! Real recordings have no truth; simulated flights do, and they go through the very decode and
 //! tracking code of the daemon ([`crate::daemon::pipeline`]).
 
+pub mod bench;
 pub mod io;
+pub mod plot;
 pub mod report;
 pub mod score;

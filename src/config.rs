@@ -117,6 +117,8 @@ pub struct TrackerConfig {
     pub cv_q_vertical: f64,
     /// A gap longer than this re-initialises a track, s.
     pub max_gap_s: f64,
+    /// Horizons of the predicted positions served by `/api/v1/tracks/{icao}/prediction`, s.
+    pub prediction_horizons_s: Vec<f64>,
 }
 
 /// The tracker algorithms the daemon can run.
@@ -227,6 +229,14 @@ impl Config {
         positive("tracker.cv_q_horizontal", self.tracker.cv_q_horizontal)?;
         positive("tracker.cv_q_vertical", self.tracker.cv_q_vertical)?;
         positive("tracker.max_gap_s", self.tracker.max_gap_s)?;
+        for (i, h) in self.tracker.prediction_horizons_s.iter().enumerate() {
+            if !(h.is_finite() && *h > 0.0 && *h <= 3600.0) {
+                return Err(bad(
+                    &format!("tracker.prediction_horizons_s[{i}]"),
+                    format!("must be within (0, 3600] s, got {h}"),
+                ));
+            }
+        }
         if self.tracker.channel_capacity == 0 {
             return Err(bad("tracker.channel_capacity", "must be at least 1"));
         }

@@ -87,6 +87,39 @@ async fn us_short_flights_end_to_end() {
         );
     }
 
+    // Predictions at +30/60/120 s: a CV track moves ground_speed * dt along its track, and
+    // its uncertainty grows with the horizon.
+    let (code, p) = get_json(d.addr, &format!("/api/v1/tracks/{icao}/prediction")).await;
+    assert_eq!(code, 200, "{p}");
+    let preds = p["predictions"].as_array().unwrap();
+    assert_eq!(preds.len(), 3);
+    let (lat0, lon0) = (one["lat"].as_f64().unwrap(), one["lon"].as_f64().unwrap());
+    let speed = one["ground_speed_mps"].as_f64().unwrap();
+    let mut last_sigma = one["pos_sigma_m"].as_f64().unwrap();
+    for (pr, dt) in preds.iter().zip([30.0, 60.0, 120.0]) {
+        assert_eq!(pr["dt_s"].as_f64().unwrap(), dt);
+        let (lat, lon) = (pr["lat"].as_f64().unwrap(), pr["lon"].as_f64().unwrap());
+        // Equirectangular distance is exact enough over a few km.
+        let dn = (lat - lat0).to_radians() * 6_371_000.0;
+        let de = (lon - lon0).to_radians() * 6_371_000.0 * lat0.to_radians().cos();
+        let moved = dn.hypot(de);
+        assert!(
+            (moved - speed * dt).abs() < 0.01 * speed * dt + 5.0,
+            "dt {dt}: {moved} m vs {}",
+            speed * dt
+        );
+        let sigma = pr["pos_sigma_m"].as_f64().unwrap();
+        assert!(
+            sigma > last_sigma,
+            "sigma must grow: {sigma} after {last_sigma}"
+        );
+        last_sigma = sigma;
+    }
+    let (code, _) = get_json(d.addr, "/api/v1/tracks/000001/prediction").await;
+    assert_eq!(code, 404);
+    let (code, _) = get_json(d.addr, "/api/v1/tracks/xyz/prediction").await;
+    assert_eq!(code, 400);
+
     // Filters: a box around the whole US keeps all, one over Europe none; mode=CV keeps all.
     let (_, all) = get_json(d.addr, "/api/v1/tracks?bbox=24,-125,50,-66&mode=CV").await;
     assert_eq!(all["tracks"].as_array().unwrap().len(), 7);

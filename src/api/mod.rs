@@ -57,6 +57,7 @@ pub fn app(shared: Shared) -> Router {
         .route("/", get(|| async { Html(INDEX_HTML) }))
         .route("/api/v1/tracks", get(tracks))
         .route("/api/v1/tracks/{icao}", get(track))
+        .route("/api/v1/tracks/{icao}/prediction", get(prediction))
         .route("/api/v1/stats", get(stats))
         .route("/healthz", get(healthz))
         .route("/metrics", get(metrics))
@@ -171,6 +172,33 @@ async fn track(
         .get(icao)
         .map(Json)
         .ok_or_else(|| ApiError::NotFound(format!("no track for {icao}")))
+}
+
+#[derive(Serialize)]
+struct PredictionBody {
+    icao: Icao,
+    /// Time of the estimate the predictions start from, s.
+    t: f64,
+    mode: &'static str,
+    predictions: Vec<crate::daemon::registry::Prediction>,
+}
+
+/// Positions predicted by the current mode's model at the configured horizons.
+async fn prediction(
+    State(shared): State<Shared>,
+    Path(icao): Path<String>,
+) -> Result<Json<PredictionBody>, ApiError> {
+    let icao: Icao = icao.parse().map_err(ApiError::BadRequest)?;
+    let t = shared
+        .registry
+        .get(icao)
+        .ok_or_else(|| ApiError::NotFound(format!("no track for {icao}")))?;
+    Ok(Json(PredictionBody {
+        icao,
+        t: t.t,
+        mode: t.mode,
+        predictions: t.predictions.clone(),
+    }))
 }
 
 async fn stats(State(shared): State<Shared>) -> Json<crate::daemon::stats::StatsSnapshot> {

@@ -4,7 +4,7 @@
 //! [`Aircraft`] is synchronous (so it is tested without a runtime); [`run_task`] is the tokio
 //! task around it, one per aircraft, as mini-redis has one handler per connection.
 
-use super::registry::{Registry, TrackState};
+use super::registry::{Prediction, Registry, TrackState};
 use super::stats::Stats;
 use crate::decode::cpr::{CprConfig, CprDecoder, PositionFix, RejectReason};
 use crate::decode::{AltitudeSource, Callsign, Decoded, Icao, Message, Velocity};
@@ -324,6 +324,28 @@ impl Aircraft {
         })
     }
 
+    /// The published state with predicted positions `horizons_s` seconds ahead.
+    pub fn snapshot_with_predictions(&self, horizons_s: &[f64]) -> Option<TrackState> {
+        let mut s = self.snapshot()?;
+        let frame = self.frame.as_ref()?;
+        s.predictions = horizons_s
+            .iter()
+            .filter_map(|&dt_s| {
+                let p = self.tracker.predict(s.t + dt_s)?;
+                let (lat, lon, alt_m) = frame.to_geodetic(&p.pos_m);
+                Some(Prediction {
+                    dt_s,
+                    t: p.t_s,
+                    lat,
+                    lon,
+                    alt_m,
+                    pos_sigma_m: p.pos_sigma_m(),
+                })
+            })
+            .collect();
+        Some(s)
+    }
+
     /// The published state, `None` until the tracker has an estimate.
     pub fn snapshot(&self) -> Option<TrackState> {
         let est = self.tracker.estimate()?;
@@ -373,6 +395,7 @@ impl Aircraft {
             positions_rejected: self.positions_rejected,
             pos_cov_enu_m2: pos_cov,
             vel_cov_enu_m2ps2: vel_cov,
+            predictions: Vec::new(),
         })
     }
 }
@@ -410,6 +433,8 @@ pub struct TaskContext {
     /// (a dead feed): the feed-time retirement is done by the router.
     pub idle: Duration,
     pub shutdown: CancellationToken,
+    /// Horizons of the published predictions, s.
+    pub prediction_horizons_s: Vec<f64>,
 }
 
 /// The task of one aircraft: receives batches of its messages, updates, publishes.
@@ -455,7 +480,11 @@ pub async fn run_task(
             }
         }
         if changed {
-            slot.store(aircraft.snapshot().map(Arc::new));
+            slot.store(
+                aircraft
+                    .snapshot_with_predictions(&ctx.prediction_horizons_s)
+                    .map(Arc::new),
+            );
         }
         if let Some(tx) = &ctx.updates {
             if !lines.is_empty() && tx.send(std::mem::take(&mut lines)).await.is_err() {

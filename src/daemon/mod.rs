@@ -137,6 +137,7 @@ pub async fn run(
         updates: updates_tx,
         idle: Duration::from_secs_f64(config.tracker.retire_after_s),
         shutdown: pipeline_stop.clone(),
+        prediction_horizons_s: config.tracker.prediction_horizons_s.clone(),
     });
 
     let (batch_tx, batch_rx) = mpsc::channel::<FrameBatch>(FEED_CHANNEL_BATCHES);

@@ -89,6 +89,24 @@ pub struct TrackState {
     pub pos_cov_enu_m2: [[f64; 3]; 3],
     /// Velocity covariance in the same axes, (m/s)^2.
     pub vel_cov_enu_m2ps2: [[f64; 3]; 3],
+    /// Predicted positions at the configured horizons (published snapshots only; empty in
+    /// `--tracks-out` lines).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub predictions: Vec<Prediction>,
+}
+
+/// A predicted position (paper 002 §1.3: extrapolation by the current mode's model).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Prediction {
+    /// Seconds ahead of the estimate.
+    pub dt_s: f64,
+    /// Feed time of the prediction, s.
+    pub t: f64,
+    pub lat: f64,
+    pub lon: f64,
+    pub alt_m: f64,
+    /// 1-sigma horizontal position uncertainty of the prediction, m.
+    pub pos_sigma_m: f64,
 }
 
 /// What the API can read: every aircraft's latest snapshot.

@@ -2,7 +2,7 @@
 //! library. Everything else lives in the library so tests can run it.
 
 use adsb_tracker::config::Config;
-use adsb_tracker::daemon::source::{Replay, ReplayData, EMBEDDED_DEFAULT};
+use adsb_tracker::daemon::source::{Replay, ReplayData, EMBEDDED_DEFAULT, EMBEDDED_RECEIVER};
 use adsb_tracker::daemon::{self, RunOptions, Source};
 use adsb_tracker::feed::Format;
 use anyhow::{bail, Context, Result};
@@ -254,6 +254,14 @@ async fn main() -> Result<()> {
                 .with_context(|| format!("binding {}", cfg.server.listen))?;
             let source = if cfg.feeds.is_empty() {
                 let data = if cfg.replay.file.is_empty() {
+                    // The embedded flight starts at a gate at Paris-CDG: surface positions
+                    // need a reference, so lend it the airport's unless one is configured.
+                    if cfg.receiver.is_none() {
+                        cfg.receiver = Some(adsb_tracker::config::ReceiverConfig {
+                            lat_deg: EMBEDDED_RECEIVER.0,
+                            lon_deg: EMBEDDED_RECEIVER.1,
+                        });
+                    }
                     EMBEDDED_DEFAULT
                 } else {
                     ReplayData::File(PathBuf::from(&cfg.replay.file))

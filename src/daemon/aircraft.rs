@@ -46,6 +46,11 @@ const NACP_EPU_M: [f64; 12] = [
 /// DO-260 Table 2-14), used until an operational status gives the NACp.
 fn epu_from_type_code_m(tc: u8) -> f64 {
     match tc {
+        // Surface positions: TC 5-8 carry NUCp 9-6.
+        5 => 3.0,
+        6 => 10.0,
+        7 => 92.6,
+        8 => 185.2,
         9 | 20 => 3.0,
         10 | 21 => 10.0,
         11 => 92.6,

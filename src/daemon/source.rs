@@ -16,7 +16,7 @@ use tokio::sync::mpsc;
 use tokio_util::sync::CancellationToken;
 
 /// Where a replay's bytes come from.
-#[derive(Clone, Debug)]
+#[derive(Clone)]
 pub enum ReplayData {
     File(PathBuf),
     /// A recording compiled into the binary (the `serve` default).
@@ -26,12 +26,28 @@ pub enum ReplayData {
     },
 }
 
+impl std::fmt::Debug for ReplayData {
+    /// The path or the name, never the embedded bytes.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Self::File(p) => write!(f, "{}", p.display()),
+            Self::Embedded { name, bytes } => {
+                write!(f, "embedded {name} ({} bytes)", bytes.len())
+            }
+        }
+    }
+}
+
 /// The embedded default recording: AFR34ZG, Paris CDG to Toulouse, gate to gate
 /// (fixtures/afr34zg-cdg-tls.jsonl, MIT, xoolive/traffic; see fixtures/README.md).
 pub const EMBEDDED_DEFAULT: ReplayData = ReplayData::Embedded {
     name: "afr34zg-cdg-tls.jsonl",
     bytes: include_bytes!("../../fixtures/afr34zg-cdg-tls.jsonl"),
 };
+
+/// A receiver location for the embedded recording (Paris-CDG aerodrome reference point),
+/// used as the surface CPR reference when the configuration gives none.
+pub const EMBEDDED_RECEIVER: (f64, f64) = (49.0097, 2.5479);
 
 /// A replay to run.
 #[derive(Clone, Debug)]

@@ -191,6 +191,10 @@ pub struct Imm {
     p: [Matrix9; N_MODES],
     mu: [f64; N_MODES],
     diverged: [bool; N_MODES],
+    /// Consecutive divergence events of each mode's filter (paper 000 confirmation).
+    divergence_runs: [u32; N_MODES],
+    /// Σⱼ μⱼ (Pⱼ(k|k−1) − Pⱼ(k|k)) over the velocity block at the last step.
+    velocity_correction_cov: Matrix3<f64>,
     divergence_events: [u64; N_MODES],
 }
 
@@ -204,6 +208,8 @@ impl Imm {
             p: [Matrix9::identity(); N_MODES],
             mu: [0.0; N_MODES],
             diverged: [false; N_MODES],
+            divergence_runs: [0; N_MODES],
+            velocity_correction_cov: Matrix3::zeros(),
             divergence_events: [0; N_MODES],
         };
         imm.mu = imm.normalised(&params.initial_probabilities);
@@ -245,6 +251,7 @@ impl Imm {
         let initial = self.params.initial_probabilities;
         self.mu = self.normalised(mu.unwrap_or(&initial));
         self.diverged = [false; N_MODES];
+        self.divergence_runs = [0; N_MODES];
     }
 
     /// Sets the turn rate magnitude of both CT models, rad/s.
@@ -301,6 +308,14 @@ impl Imm {
         &self.divergence_events
     }
 
+    /// Covariance of the last step's correction of the velocity, Σⱼ μⱼ Kⱼ Sⱼ Kⱼᵀ =
+    /// Σⱼ μⱼ (Pⱼ(k|k−1) − Pⱼ(k|k)) over the velocity block: the report-to-report scatter of
+    /// the estimated velocity (its error itself is strongly correlated from report to
+    /// report).
+    pub fn velocity_correction_cov(&self) -> &Matrix3<f64> {
+        &self.velocity_correction_cov
+    }
+
     /// The state and covariance of one mode's filter.
     pub fn mode_state(&self, mode: ImmMode) -> (&State9, &Matrix9) {
         (&self.x[mode.index()], &self.p[mode.index()])
@@ -354,6 +369,8 @@ impl Imm {
         let mut p_new = self.p;
         let mut log_post = [f64::NEG_INFINITY; N_MODES];
         let mut diverged = [false; N_MODES];
+        let mut runs = [0; N_MODES];
+        let mut corrections = [Matrix3::zeros(); N_MODES];
         let mut first_error = None;
         let mut any_ok = false;
         for j in 0..N_MODES {
@@ -378,12 +395,16 @@ impl Imm {
             }
             // Mode-matched, divergence-guarded filtering.
             let pred = Prediction::<9>::new(self.models[j].as_dyn(), &x0, &p0, dt_s);
-            match guarded_update(&pred, obs, &self.params.divergence) {
+            match guarded_update(&pred, obs, &self.params.divergence, self.divergence_runs[j]) {
                 Ok(g) => {
                     any_ok = true;
                     x_new[j] = g.x;
                     p_new[j] = g.p;
                     diverged[j] = g.diverged;
+                    runs[j] = g.run;
+                    corrections[j] = (pred.covariance(g.adapt) - g.p)
+                        .fixed_view::<3, 3>(VEL, VEL)
+                        .into_owned();
                     if g.log_likelihood.is_finite() {
                         log_post[j] = c_bar[j].ln() + g.log_likelihood;
                     }
@@ -414,6 +435,11 @@ impl Imm {
         self.p = p_new;
         self.mu = self.normalised(&mu);
         self.diverged = diverged;
+        self.divergence_runs = runs;
+        self.velocity_correction_cov = corrections
+            .iter()
+            .zip(self.mu)
+            .fold(Matrix3::zeros(), |acc, (c, mu)| acc + c * mu);
         for (events, d) in self.divergence_events.iter_mut().zip(diverged) {
             *events = events.saturating_add(u64::from(d));
         }

@@ -208,14 +208,12 @@ impl GateFlags {
 pub struct GateReading {
     /// Turn rate, rad/s, positive = left (counter-clockwise).
     pub turn_rate_rad_s: Option<f64>,
-    /// Turn rate over the (longer) trend window, rad/s: a steadier estimate of the rate of
-    /// an established turn, for the CT model and for prediction.
-    pub smoothed_turn_rate_rad_s: Option<f64>,
     /// Along-track acceleration, m/s².
     pub along_track_accel_mps2: Option<f64>,
     /// Mean vertical rate, m/s.
     pub vertical_rate_mps: Option<f64>,
-    /// Paper's Δv (last − first), m/s.
+    /// Paper's Δv (last − first), m/s. This and the next four are computed only when one
+    /// of the paper's tests is configured.
     pub speed_change_mps: Option<f64>,
     /// Paper's Δa (last − first), m/s².
     pub accel_change_mps2: Option<f64>,
@@ -305,14 +303,16 @@ impl GateReading {
     }
 }
 
-/// Wraps an angle difference into (−π, π].
+/// Wraps the difference of two angles in (−π, π] (so the difference is in (−2π, 2π))
+/// back into (−π, π].
 fn wrap_pi(a: f64) -> f64 {
-    let two_pi = std::f64::consts::TAU;
-    let r = a.rem_euclid(two_pi);
-    if r > std::f64::consts::PI {
-        r - two_pi
+    use std::f64::consts::{PI, TAU};
+    if a > PI {
+        a - TAU
+    } else if a <= -PI {
+        a + TAU
     } else {
-        r
+        a
     }
 }
 
@@ -374,6 +374,13 @@ impl Gate {
         self.len = 0;
         self.head = 0;
         self.reading = GateReading::default();
+    }
+
+    /// The turn rate over the (longer) trend window, rad/s: a steadier estimate of the rate
+    /// of an established turn (for the CT models and for prediction). Computed on demand.
+    pub fn smoothed_turn_rate_rad_s(&self) -> Option<f64> {
+        self.heading_slope(self.params.trend_window_reports)
+            .map(|(slope, _)| slope)
     }
 
     /// The last evaluation.
@@ -504,9 +511,6 @@ impl Gate {
                 &p,
             );
         }
-        r.smoothed_turn_rate_rad_s = self
-            .heading_slope(p.trend_window_reports)
-            .map(|(slope, _)| slope);
 
         // Along-track acceleration over the trend window, vertical rate over its own.
         let trend = self
@@ -534,7 +538,23 @@ impl Gate {
             r.flags.vertical = fires(mean, sigma, p.vertical_rate_mps, old.vertical, &p);
         }
 
-        // Paper 002: changes between the first and the last of the last N reports.
+        // Paper 002: changes between the first and the last of the last N reports (only
+        // when one of its tests is configured).
+        let paper = [
+            p.speed_change_mps,
+            p.accel_change_mps2,
+            p.heading_change_deg,
+            p.pitch_change_deg,
+        ];
+        if paper.iter().any(Option::is_some) {
+            self.paper_changes(&mut r, old);
+        }
+        self.reading = r;
+    }
+
+    /// The paper's Δv, Δa, Δφ, Δβ over the last N reports into `r`.
+    fn paper_changes(&self, r: &mut GateReading, old: GateFlags) {
+        let p = &self.params;
         let mut first: Option<&Sample> = None;
         let mut last: Option<&Sample> = None;
         let mut first_accel: Option<f64> = None;
@@ -558,7 +578,7 @@ impl Gate {
             if !std::ptr::eq(f, l) {
                 let dv = l.speed_mps - f.speed_mps;
                 r.speed_change_mps = Some(dv);
-                r.flags.speed_change = fires(dv, 0.0, p.speed_change_mps, old.speed_change, &p);
+                r.flags.speed_change = fires(dv, 0.0, p.speed_change_mps, old.speed_change, p);
                 if f.speed_mps >= p.min_speed_mps && l.speed_mps >= p.min_speed_mps {
                     r.heading_change_rad = Some(heading_change);
                     r.flags.heading_change = fires(
@@ -566,7 +586,7 @@ impl Gate {
                         0.0,
                         p.heading_change_deg.map(f64::to_radians),
                         old.heading_change,
-                        &p,
+                        p,
                     );
                 }
                 if f.var_u.is_finite() && l.var_u.is_finite() {
@@ -577,7 +597,7 @@ impl Gate {
                         0.0,
                         p.pitch_change_deg.map(f64::to_radians),
                         old.pitch_change,
-                        &p,
+                        p,
                     );
                 }
             }
@@ -585,9 +605,8 @@ impl Gate {
         if let (Some(a0), Some(a1)) = (first_accel, last_accel) {
             let da = a1 - a0;
             r.accel_change_mps2 = Some(da);
-            r.flags.accel_change = fires(da, 0.0, p.accel_change_mps2, old.accel_change, &p);
+            r.flags.accel_change = fires(da, 0.0, p.accel_change_mps2, old.accel_change, p);
         }
-        self.reading = r;
     }
 }
 
@@ -683,7 +702,8 @@ mod tests {
         let accel = |t: f64| heading_speed(80.0, 120.0 + 1.0 * t, 0.0);
         let climb = |_t: f64| heading_speed(80.0, 120.0, 120.0 * 3f64.to_radians().tan());
         let turn = |t: f64| heading_speed(80.0 + 1.2 * t, 230.0, 0.0);
-        let cases: [(&str, &dyn Fn(f64) -> Vector3<f64>, FlightMode); 3] = [
+        type Profile<'a> = &'a dyn Fn(f64) -> Vector3<f64>;
+        let cases: [(&str, Profile, FlightMode); 3] = [
             ("acceleration 1 m/s²", &accel, FlightMode::Ca),
             ("climb 3°", &climb, FlightMode::Ch),
             ("turn 1.2°/s", &turn, FlightMode::Ct),

@@ -108,6 +108,10 @@ impl HybridParams {
 
 /// Which filter runs.
 #[derive(Clone, Copy, Debug, PartialEq)]
+#[allow(
+    clippy::large_enum_variant,
+    reason = "one per tracker, held in place; boxing the CV state would allocate"
+)]
 enum Branch {
     /// The CV Kalman filter with its state.
     Cv { x: State6, p: Matrix6 },
@@ -253,9 +257,12 @@ impl HybridTracker {
                 *p = g.p;
                 self.diverging = g.diverged;
                 self.cv_divergence_run = g.run;
-                self.velocity_correction_cov = (pred.covariance(g.adapt) - g.p)
-                    .fixed_view::<3, 3>(3, 3)
-                    .into_owned();
+                if matches!(obs, Observation::Position(_)) {
+                    // Only a report without a velocity may feed the gate a derived one.
+                    self.velocity_correction_cov = (pred.fpf * g.adapt + pred.q - g.p)
+                        .fixed_view::<3, 3>(3, 3)
+                        .into_owned();
+                }
                 self.stats.cv_updates += 1;
             }
             Branch::Imm { .. } => {
@@ -324,8 +331,8 @@ impl HybridTracker {
         if !self.params.adapt_turn_rate || reading.lateral() == Lateral::Straight {
             return default;
         }
-        reading
-            .smoothed_turn_rate_rad_s
+        self.gate
+            .smoothed_turn_rate_rad_s()
             .or(reading.turn_rate_rad_s)
             .map_or(default, |w| {
                 w.abs()

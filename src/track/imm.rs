@@ -377,20 +377,22 @@ impl Imm {
             if !self.params.enabled[j] || c_bar[j] <= 0.0 {
                 continue;
             }
-            // Mixing.
+            // Mixing: μᵢ|ⱼ = πᵢⱼ μᵢ / c̄ⱼ.
+            let mut w = [0.0; N_MODES];
+            for ((wi, row), mu) in w.iter_mut().zip(&pi).zip(self.mu) {
+                *wi = row[j] * mu / c_bar[j];
+            }
             let mut x0 = State9::zeros();
-            for i in 0..N_MODES {
-                let w = pi[i][j] * self.mu[i] / c_bar[j];
-                if w > 0.0 {
-                    x0 += self.x[i] * w;
+            for (xi, wi) in self.x.iter().zip(w) {
+                if wi > 0.0 {
+                    x0 += xi * wi;
                 }
             }
             let mut p0 = Matrix9::zeros();
-            for i in 0..N_MODES {
-                let w = pi[i][j] * self.mu[i] / c_bar[j];
-                if w > 0.0 {
-                    let d = self.x[i] - x0;
-                    p0 += (self.p[i] + d * d.transpose()) * w;
+            for ((xi, pi_cov), wi) in self.x.iter().zip(&self.p).zip(w) {
+                if wi > 0.0 {
+                    let d = xi - x0;
+                    p0 += (pi_cov + d * d.transpose()) * wi;
                 }
             }
             // Mode-matched, divergence-guarded filtering.
@@ -499,6 +501,10 @@ impl Default for InitParams {
 
 /// What [`Initiator::offer`] decided for a report.
 #[derive(Clone, Copy, Debug, PartialEq)]
+#[allow(
+    clippy::large_enum_variant,
+    reason = "a return value moved once; boxing the new state would allocate"
+)]
 pub enum Start {
     /// The track runs: filter this report.
     Running,

@@ -121,8 +121,11 @@ pub struct TrackerConfig {
     pub prediction_horizons_s: Vec<f64>,
 }
 
-/// The tracker algorithms the daemon can run.
-pub const ALGORITHMS: &[&str] = &["kalman-cv"];
+/// The tracker algorithms the daemon can run: `hybrid` (paper 002's threshold-gated CV
+/// Kalman / IMM with paper 000's divergence suppression, gate tuned for airliners; the
+/// default), `hybrid-paper002` (the same with the paper's printed gate thresholds),
+/// `kalman-cv` (CV Kalman filter alone) and `imm` (the IMM alone).
+pub const ALGORITHMS: &[&str] = &["hybrid", "hybrid-paper002", "kalman-cv", "imm"];
 
 impl Config {
     /// The embedded defaults.
@@ -265,7 +268,7 @@ mod tests {
         let c = Config::default_config().unwrap();
         assert_eq!(c.server.listen, "127.0.0.1:8080");
         assert!(c.feeds.is_empty());
-        assert_eq!(c.tracker.algorithm, "kalman-cv");
+        assert_eq!(c.tracker.algorithm, "hybrid");
         assert_eq!(c.decode.recent_address_s, 60.0);
     }
 

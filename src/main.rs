@@ -76,7 +76,7 @@ enum Command {
         #[arg(long, default_value_t = 100)]
         runs: u64,
         /// Comma-separated tracker names.
-        #[arg(long, default_value = "kalman-cv")]
+        #[arg(long, default_value = "hybrid,kalman-cv,imm")]
         trackers: String,
         /// Seed of the first run (run k uses seed + k).
         #[arg(long, default_value_t = 1)]

@@ -24,8 +24,8 @@ struct Scored {
     markdown: String,
 }
 
-/// simulate + replay + evaluate of one built-in scenario in `dir`.
-fn simulate_replay_evaluate(scenario: &str, dir: &Path) -> Scored {
+/// simulate + replay (with `tracker`) + evaluate of one built-in scenario in `dir`.
+fn simulate_replay_evaluate(scenario: &str, tracker: &str, dir: &Path) -> Scored {
     let prefix = dir.join(scenario);
     run_ok(
         bin()
@@ -37,7 +37,14 @@ fn simulate_replay_evaluate(scenario: &str, dir: &Path) -> Scored {
     let tracks = dir.join(format!("{scenario}.tracks.jsonl"));
     let mut replay = bin();
     replay
-        .args(["replay", "--speed", "max", "--tracks-out"])
+        .args([
+            "replay",
+            "--speed",
+            "max",
+            "--tracker",
+            tracker,
+            "--tracks-out",
+        ])
         .arg(&tracks)
         .arg(&beast);
     if scenario == "paper001" {
@@ -91,7 +98,7 @@ fn every_builtin_scenario_through_the_whole_bench() {
         "departure",
         "approach",
     ] {
-        let s = simulate_replay_evaluate(scenario, &dir);
+        let s = simulate_replay_evaluate(scenario, "kalman-cv", &dir);
         let scores = &s.results[0]["scores"];
         let all = &scores["estimates"]["all"];
         assert!(
@@ -113,7 +120,7 @@ fn every_builtin_scenario_through_the_whole_bench() {
         }
     }
     // Paper 002: on straight legs the CV Kalman filter beats the raw measurements clearly.
-    let s = simulate_replay_evaluate("paper002", &dir);
+    let s = simulate_replay_evaluate("paper002", "kalman-cv", &dir);
     let scores = &s.results[0]["scores"];
     let est_cv = rmse(&scores["estimates"]["CV"]);
     let raw_cv = rmse(&scores["raw"]["CV"]);

@@ -9,7 +9,10 @@ use super::stats::Stats;
 use crate::decode::cpr::{CprConfig, CprDecoder, PositionFix, RejectReason};
 use crate::decode::{AltitudeSource, Callsign, Decoded, Icao, Message, Velocity};
 use crate::track::geo::LocalFrame;
-use crate::track::{Measurement, Observed, TrackError, Tracker, UNMEASURED_VARIANCE};
+use crate::track::{
+    Lateral, Measurement, Observed, SpeedTrend, TrackError, Tracker, TurnDirection, VerticalTrend,
+    UNMEASURED_VARIANCE,
+};
 use arc_swap::ArcSwapOption;
 use nalgebra::{Matrix3, Vector3};
 use std::sync::Arc;
@@ -378,6 +381,25 @@ impl Aircraft {
             vn,
             vu,
             mode: est.mode.as_str(),
+            turn: est.turn.map(|d| match d {
+                TurnDirection::Left => "left",
+                TurnDirection::Right => "right",
+            }),
+            lateral: match est.lateral {
+                Lateral::Straight => "straight",
+                Lateral::Left => "left",
+                Lateral::Right => "right",
+            },
+            speed: match est.speed {
+                SpeedTrend::Constant => "constant",
+                SpeedTrend::Increasing => "increasing",
+                SpeedTrend::Decreasing => "decreasing",
+            },
+            vertical: match est.vertical {
+                VerticalTrend::Level => "level",
+                VerticalTrend::Climb => "climb",
+                VerticalTrend::Descent => "descent",
+            },
             filter: est.filter,
             pos_sigma_m: est.pos_sigma_m(),
             diverging: est.diverging,

@@ -82,14 +82,23 @@ pub struct Shared {
     pub config: Arc<Config>,
 }
 
-/// Builds the tracker `cfg.algorithm` names (validated at config load).
+/// Builds the tracker `cfg.algorithm` names (validated at config load against
+/// [`crate::config::ALGORITHMS`]).
 pub fn build_tracker(cfg: &TrackerConfig) -> Box<dyn Tracker> {
-    Box::new(CvKalman::new(CvParams {
-        q_h_m2ps3: cfg.cv_q_horizontal,
-        q_v_m2ps3: cfg.cv_q_vertical,
-        max_gap_s: cfg.max_gap_s,
-        ..CvParams::default()
-    }))
+    use crate::track::hybrid::{HybridParams, HybridTracker};
+    use crate::track::imm::{ImmTracker, ImmTrackerParams};
+    match cfg.algorithm.as_str() {
+        "kalman-cv" => Box::new(CvKalman::new(CvParams {
+            q_h_m2ps3: cfg.cv_q_horizontal,
+            q_v_m2ps3: cfg.cv_q_vertical,
+            max_gap_s: cfg.max_gap_s,
+            ..CvParams::default()
+        })),
+        "imm" => Box::new(ImmTracker::new(ImmTrackerParams::default())),
+        "hybrid-paper002" => Box::new(HybridTracker::new(HybridParams::paper002())),
+        // "hybrid", the default; validation refuses unknown names before we get here.
+        _ => Box::new(HybridTracker::new(HybridParams::default())),
+    }
 }
 
 /// Runs the daemon until `shutdown` (or, with `exit_at_end`, the end of a replay).

@@ -56,6 +56,14 @@ pub struct TrackState {
     pub vu: f64,
     /// Flight-mode label of the estimate.
     pub mode: &'static str,
+    /// "left" or "right" when `mode` is CT.
+    pub turn: Option<&'static str>,
+    /// I062/200-style movement axes: "straight" | "left" | "right".
+    pub lateral: &'static str,
+    /// "constant" | "increasing" | "decreasing".
+    pub speed: &'static str,
+    /// "level" | "climb" | "descent".
+    pub vertical: &'static str,
     /// Which filter produced the estimate.
     pub filter: &'static str,
     /// 1-sigma horizontal position uncertainty, m.

@@ -257,6 +257,11 @@ impl CvKalman {
             filter: NAME,
             diverging: self.diverging,
             divergence_events: self.divergence_events,
+            // The CV filter does not label manoeuvres: it always says straight, constant, level.
+            turn: None,
+            lateral: super::Lateral::Straight,
+            speed: super::SpeedTrend::Constant,
+            vertical: super::VerticalTrend::Level,
         }
     }
 }

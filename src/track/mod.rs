@@ -6,8 +6,13 @@
 //! local east-north-up plane ([`geo`]); dt is always an argument (ADS-B reports are irregular).
 
 pub mod cv;
+pub mod divergence;
+pub mod gate;
 pub mod geo;
+pub mod hybrid;
+pub mod imm;
 pub mod kalman;
+pub mod models;
 
 use nalgebra::{Matrix3, Vector3};
 
@@ -50,6 +55,51 @@ impl std::str::FromStr for FlightMode {
             .find(|m| m.as_str().eq_ignore_ascii_case(s))
             .ok_or_else(|| format!("unknown flight mode {s:?} (expected CV, CA, CT, CH or CHCA)"))
     }
+}
+
+/// Direction of a coordinated turn (paper 002's CT mode has a left and a right variant).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum TurnDirection {
+    /// Counter-clockwise seen from above (heading decreasing).
+    Left,
+    /// Clockwise seen from above (heading increasing).
+    Right,
+}
+
+/// Transversal movement, after ASTERIX CAT062 I062/200 "Mode of Movement" (TRANS).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Default)]
+pub enum Lateral {
+    /// Constant course.
+    #[default]
+    Straight,
+    /// Turning left.
+    Left,
+    /// Turning right.
+    Right,
+}
+
+/// Longitudinal movement, after I062/200 (LONG): the trend of the ground speed.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Default)]
+pub enum SpeedTrend {
+    /// Constant ground speed.
+    #[default]
+    Constant,
+    /// Accelerating along track.
+    Increasing,
+    /// Decelerating along track.
+    Decreasing,
+}
+
+/// Vertical movement, after I062/200 (VERT).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Default)]
+pub enum VerticalTrend {
+    /// Level flight.
+    #[default]
+    Level,
+    /// Climbing.
+    Climb,
+    /// Descending.
+    Descent,
 }
 
 /// A measured vector in the local ENU plane with its covariance.
@@ -100,6 +150,14 @@ pub struct Estimate {
     pub diverging: bool,
     /// Divergence events counted over the track's life.
     pub divergence_events: u64,
+    /// Direction of the turn when `mode` is [`FlightMode::Ct`], else `None`.
+    pub turn: Option<TurnDirection>,
+    /// Transversal movement (I062/200 TRANS).
+    pub lateral: Lateral,
+    /// Longitudinal movement (I062/200 LONG).
+    pub speed: SpeedTrend,
+    /// Vertical movement (I062/200 VERT).
+    pub vertical: VerticalTrend,
 }
 
 impl Estimate {

@@ -1,0 +1,902 @@
+//! The manoeuvre gate of paper 002 (§1.2, Fig. 1; ALGORITHMS.md §002) that chooses between
+//! the cheap CV Kalman filter and the IMM, and labels the manoeuvre.
+//!
+//! Paper 002 compares, over the last N reports (N = 5), the changes of ground speed Δv,
+//! ground (along-track) acceleration Δa, heading Δφ and pitch Δβ with thresholds
+//! λv = 10 m/s, λa = 5 m/s², λφ = 1°, λβ = 5°: all below → CV. That is
+//! [`GateParams::paper002`].
+//!
+//! Measured on a prototype, those thresholds never fire on what airliners fly every day:
+//! 1–1.5 m/s² along track changes the speed by 3 m/s over five half-second reports (λv is
+//! 10 m/s), and a steady climb or descent, even at 3.4°, has no pitch CHANGE at all. So the
+//! DEFAULT gate ([`GateParams::default`]) tests rates instead, each estimated by least
+//! squares over a window of velocity reports and required to be both above its threshold
+//! and significant (k σ of its own estimation noise):
+//! - turn rate: slope of the heading over the last 5 reports, > 0.5°/s (paper 002's
+//!   λφ = 1° over five reports half a second apart);
+//! - along-track acceleration: slope of the ground speed over the last 12 reports (~6 s),
+//!   > 0.3 m/s²;
+//! - vertical speed: mean vertical rate over the last 6 reports, > 1.5 m/s (300 ft/min).
+//!
+//! ADS-B gives the velocity directly (airborne velocity message, DO-260B §2.2.3.2.6), so
+//! heading and speed changes are MEASURED, not differentiated positions; the gate feeds on
+//! those reports. Their 1-kt (0.514 m/s) and 64-ft/min (0.325 m/s) resolution adds a uniform
+//! quantisation error of variance q²/12 to each component, which the significance test
+//! includes; least squares over several reports averages it down (a heading at 70 m/s is
+//! quantised to 0.4°, far above a 0.5°/s rate over one half-second report).
+//!
+//! When the track only receives positions, the tracker feeds the gate with its own filtered
+//! velocity (a derived sample: no quantisation, the covariance it is given as is). Derived
+//! samples serve the turn and the paper's tests only: positions with ADS-B's ~10 m noise
+//! cannot resolve 0.3 m/s² or 1.5 m/s within these windows (measured on paper 002's scenario
+//! fed positions only: the along-track test on a CV filter's velocity fired on 1.4 % of
+//! straight-leg reports), so the along-track and vertical tests use measured velocities only
+//! (a big speed or height change still shows as divergence to the tracker).
+//!
+//! Hysteresis: a fired gate stays fired while its statistic exceeds `release_ratio` times its
+//! threshold (and significance), so a manoeuvre at the threshold does not flicker.
+//! Fixed-capacity ring buffer: no allocation.
+
+use super::{
+    FlightMode, Lateral, Observed, SpeedTrend, TurnDirection, VerticalTrend, UNMEASURED_VARIANCE,
+};
+
+/// Most reports a window may span.
+pub const GATE_CAPACITY: usize = 32;
+
+/// 1 knot in m/s: the resolution of ADS-B velocity components (DO-260B §2.2.3.2.6.1.7/.8,
+/// subsonic).
+pub const KNOT_MPS: f64 = 0.514_444;
+/// 64 ft/min in m/s: the resolution of the ADS-B vertical rate (DO-260B §2.2.3.2.6.1.14).
+pub const VRATE_LSB_MPS: f64 = 64.0 * 0.3048 / 60.0;
+
+/// Thresholds and windows of the gate. A threshold of `None` disables its test.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct GateParams {
+    /// N: reports over which the paper's changes Δv, Δa, Δφ, Δβ are taken (paper: 5).
+    pub window_reports: usize,
+    /// λv: |Δ ground speed| over the window, m/s (paper: 10).
+    pub speed_change_mps: Option<f64>,
+    /// λa: |Δ along-track acceleration| over the window, m/s² (paper: 5). The accelerations
+    /// are differences of consecutive ground speeds.
+    pub accel_change_mps2: Option<f64>,
+    /// λφ: |Δ heading| over the window, degrees (paper: 1).
+    pub heading_change_deg: Option<f64>,
+    /// λβ: |Δ pitch| (flight-path angle) over the window, degrees (paper: 5).
+    pub pitch_change_deg: Option<f64>,
+    /// |Turn rate| threshold, °/s (least-squares slope of the heading).
+    pub turn_rate_deg_s: Option<f64>,
+    /// Reports in the turn-rate window.
+    pub turn_window_reports: usize,
+    /// |Along-track acceleration| threshold, m/s² (least-squares slope of the ground speed).
+    pub along_track_accel_mps2: Option<f64>,
+    /// |Vertical rate| threshold, m/s (mean over the vertical window).
+    pub vertical_rate_mps: Option<f64>,
+    /// Reports in the vertical-rate window.
+    pub vertical_window_reports: usize,
+    /// Reports in the along-track acceleration window (and the smoothed turn rate's).
+    pub trend_window_reports: usize,
+    /// Reports older than this before the newest leave every window, s.
+    pub max_window_s: f64,
+    /// k: a rate must also exceed k times the σ of its own estimate (0 disables).
+    pub significance_sigmas: f64,
+    /// A fired test stays fired while its statistic exceeds this fraction of its threshold
+    /// (1 = no hysteresis).
+    pub release_ratio: f64,
+    /// Below this ground speed the heading is meaningless and the turn tests are skipped,
+    /// m/s.
+    pub min_speed_mps: f64,
+    /// Ceiling on the σ of a measured velocity component, m/s (see [`GateParams::default`]).
+    pub max_velocity_sigma_mps: f64,
+    /// Resolution of a measured horizontal velocity component, m/s (1 kt).
+    pub speed_quantum_mps: f64,
+    /// Resolution of a measured vertical rate, m/s (64 ft/min).
+    pub vrate_quantum_mps: f64,
+}
+
+impl GateParams {
+    /// Paper 002's gate as printed (§2): N = 5, λv = 10 m/s, λa = 5 m/s², λφ = 1°, λβ = 5°,
+    /// changes between the first and the last report of the window, no significance test,
+    /// no hysteresis.
+    pub fn paper002() -> Self {
+        Self {
+            window_reports: 5,
+            speed_change_mps: Some(10.0),
+            accel_change_mps2: Some(5.0),
+            heading_change_deg: Some(1.0),
+            pitch_change_deg: Some(5.0),
+            turn_rate_deg_s: None,
+            turn_window_reports: 5,
+            along_track_accel_mps2: None,
+            vertical_rate_mps: None,
+            vertical_window_reports: 6,
+            trend_window_reports: 12,
+            max_window_s: 30.0,
+            significance_sigmas: 0.0,
+            release_ratio: 1.0,
+            min_speed_mps: 10.0,
+            max_velocity_sigma_mps: f64::INFINITY,
+            speed_quantum_mps: KNOT_MPS,
+            vrate_quantum_mps: VRATE_LSB_MPS,
+        }
+    }
+}
+
+impl Default for GateParams {
+    /// The rate gates of the module doc: turn rate > 0.5°/s over 5 reports, along-track
+    /// acceleration > 0.3 m/s² over 12, vertical rate > 1.5 m/s over 6, each significant
+    /// at k = 4σ; released at 0.6 of the threshold; windows cut at 15 s. The measured
+    /// velocity σ is capped at 1.5 m/s for the significance test: the NACv category bounds
+    /// a 95 % error (NACv 1: < 10 m/s) while GNSS ground velocity is good to a few tenths of
+    /// a m/s, the 1-kt resolution dominating, and a conservative NACv must not blind the gate.
+    fn default() -> Self {
+        Self {
+            window_reports: 5,
+            speed_change_mps: None,
+            accel_change_mps2: None,
+            heading_change_deg: None,
+            pitch_change_deg: None,
+            turn_rate_deg_s: Some(0.5),
+            turn_window_reports: 5,
+            along_track_accel_mps2: Some(0.3),
+            vertical_rate_mps: Some(1.5),
+            vertical_window_reports: 6,
+            trend_window_reports: 12,
+            max_window_s: 15.0,
+            significance_sigmas: 4.0,
+            release_ratio: 0.6,
+            min_speed_mps: 10.0,
+            max_velocity_sigma_mps: 1.5,
+            speed_quantum_mps: KNOT_MPS,
+            vrate_quantum_mps: VRATE_LSB_MPS,
+        }
+    }
+}
+
+/// One velocity in the window, with what the tests need precomputed.
+#[derive(Clone, Copy, Debug, PartialEq, Default)]
+struct Sample {
+    t_s: f64,
+    /// Ground speed, m/s.
+    speed_mps: f64,
+    /// Heading as a math angle atan2(vn, ve), rad (counter-clockwise from east).
+    angle_rad: f64,
+    /// Vertical rate, m/s (NaN-free; meaningful only when `var_u` is finite).
+    vu_mps: f64,
+    /// Variance of one horizontal component, (m/s)².
+    var_h: f64,
+    /// Variance of the vertical rate, (m/s)²; infinite when not measured.
+    var_u: f64,
+    /// From a velocity report (not derived from a filter).
+    measured: bool,
+}
+
+/// Which tests hold.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub struct GateFlags {
+    /// Turn rate.
+    pub turn: bool,
+    /// Along-track acceleration.
+    pub along_track: bool,
+    /// Vertical rate.
+    pub vertical: bool,
+    /// Paper's Δv.
+    pub speed_change: bool,
+    /// Paper's Δa.
+    pub accel_change: bool,
+    /// Paper's Δφ.
+    pub heading_change: bool,
+    /// Paper's Δβ.
+    pub pitch_change: bool,
+}
+
+impl GateFlags {
+    /// Any test holds: a manoeuvre.
+    pub fn any(&self) -> bool {
+        self.turn
+            || self.along_track
+            || self.vertical
+            || self.speed_change
+            || self.accel_change
+            || self.heading_change
+            || self.pitch_change
+    }
+}
+
+/// The statistics of the last evaluation and the tests that hold.
+#[derive(Clone, Copy, Debug, PartialEq, Default)]
+pub struct GateReading {
+    /// Turn rate, rad/s, positive = left (counter-clockwise).
+    pub turn_rate_rad_s: Option<f64>,
+    /// Along-track acceleration, m/s².
+    pub along_track_accel_mps2: Option<f64>,
+    /// Mean vertical rate, m/s.
+    pub vertical_rate_mps: Option<f64>,
+    /// Paper's Δv (last − first), m/s. This and the next four are computed only when one
+    /// of the paper's tests is configured.
+    pub speed_change_mps: Option<f64>,
+    /// Paper's Δa (last − first), m/s².
+    pub accel_change_mps2: Option<f64>,
+    /// Paper's Δφ (last − first, counter-clockwise positive), rad.
+    pub heading_change_rad: Option<f64>,
+    /// Paper's Δβ (last − first), rad.
+    pub pitch_change_rad: Option<f64>,
+    /// Flight-path angle of the newest report, rad.
+    pub pitch_rad: Option<f64>,
+    /// The tests that hold.
+    pub flags: GateFlags,
+}
+
+impl GateReading {
+    /// A manoeuvre: some test holds.
+    pub fn manoeuvre(&self) -> bool {
+        self.flags.any()
+    }
+
+    /// Transversal movement: a turn test holds, in the direction of the turn.
+    pub fn lateral(&self) -> Lateral {
+        let sign = if self.flags.turn {
+            self.turn_rate_rad_s
+        } else if self.flags.heading_change {
+            self.heading_change_rad
+        } else {
+            None
+        };
+        match sign {
+            Some(s) if s > 0.0 => Lateral::Left,
+            Some(s) if s < 0.0 => Lateral::Right,
+            _ => Lateral::Straight,
+        }
+    }
+
+    /// Longitudinal movement.
+    pub fn speed(&self) -> SpeedTrend {
+        let sign = if self.flags.along_track {
+            self.along_track_accel_mps2
+        } else if self.flags.speed_change {
+            self.speed_change_mps
+        } else if self.flags.accel_change {
+            self.accel_change_mps2
+        } else {
+            None
+        };
+        match sign {
+            Some(s) if s > 0.0 => SpeedTrend::Increasing,
+            Some(s) if s < 0.0 => SpeedTrend::Decreasing,
+            _ => SpeedTrend::Constant,
+        }
+    }
+
+    /// Vertical movement (for the paper's pitch test, the sign of the newest pitch).
+    pub fn vertical(&self) -> VerticalTrend {
+        let sign = if self.flags.vertical {
+            self.vertical_rate_mps
+        } else if self.flags.pitch_change {
+            self.pitch_rad
+        } else {
+            None
+        };
+        match sign {
+            Some(s) if s > 0.0 => VerticalTrend::Climb,
+            Some(s) if s < 0.0 => VerticalTrend::Descent,
+            _ => VerticalTrend::Level,
+        }
+    }
+
+    /// The label the tests point at: a turn → CT (with its direction); else a vertical and
+    /// a speed change → CHCA; vertical alone → CH; speed alone → CA. `None` when no test
+    /// holds.
+    pub fn label(&self) -> Option<(FlightMode, Option<TurnDirection>)> {
+        let vertical = self.vertical() != VerticalTrend::Level;
+        let speed = self.speed() != SpeedTrend::Constant;
+        match self.lateral() {
+            Lateral::Left => return Some((FlightMode::Ct, Some(TurnDirection::Left))),
+            Lateral::Right => return Some((FlightMode::Ct, Some(TurnDirection::Right))),
+            Lateral::Straight => {}
+        }
+        match (vertical, speed) {
+            (true, true) => Some((FlightMode::Chca, None)),
+            (true, false) => Some((FlightMode::Ch, None)),
+            (false, true) => Some((FlightMode::Ca, None)),
+            (false, false) => None,
+        }
+    }
+}
+
+/// Wraps the difference of two angles in (−π, π] (so the difference is in (−2π, 2π))
+/// back into (−π, π].
+fn wrap_pi(a: f64) -> f64 {
+    use std::f64::consts::{PI, TAU};
+    if a > PI {
+        a - TAU
+    } else if a <= -PI {
+        a + TAU
+    } else {
+        a
+    }
+}
+
+/// Least-squares slope of y(t) and its σ for a per-point variance `mean_var`:
+/// slope = Σ(t − t̄)(y − ȳ) / Σ(t − t̄)², σ² = mean_var / Σ(t − t̄)².
+fn ls_slope(points: impl Iterator<Item = (f64, f64, f64)> + Clone) -> Option<(f64, f64)> {
+    let (mut n, mut st, mut sy, mut sv) = (0.0, 0.0, 0.0, 0.0);
+    for (t, y, v) in points.clone() {
+        n += 1.0;
+        st += t;
+        sy += y;
+        sv += v;
+    }
+    if n < 3.0 {
+        return None;
+    }
+    let (t_bar, y_bar) = (st / n, sy / n);
+    let (mut stt, mut sty) = (0.0, 0.0);
+    for (t, y, _) in points {
+        stt += (t - t_bar) * (t - t_bar);
+        sty += (t - t_bar) * (y - y_bar);
+    }
+    if stt <= 0.0 {
+        return None;
+    }
+    Some((sty / stt, (sv / n / stt).sqrt()))
+}
+
+/// The gate: a window of the last velocities and the state of its hysteresis.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Gate {
+    params: GateParams,
+    samples: [Sample; GATE_CAPACITY],
+    /// Index of the oldest sample.
+    head: usize,
+    len: usize,
+    reading: GateReading,
+}
+
+impl Gate {
+    /// An empty gate.
+    pub fn new(params: GateParams) -> Self {
+        Self {
+            params,
+            samples: [Sample::default(); GATE_CAPACITY],
+            head: 0,
+            len: 0,
+            reading: GateReading::default(),
+        }
+    }
+
+    /// The tuning in use.
+    pub fn params(&self) -> &GateParams {
+        &self.params
+    }
+
+    /// Forgets every sample (a new track).
+    pub fn clear(&mut self) {
+        self.len = 0;
+        self.head = 0;
+        self.reading = GateReading::default();
+    }
+
+    /// The turn rate over the (longer) trend window, rad/s: a steadier estimate of the rate
+    /// of an established turn (for the CT models and for prediction). Computed on demand.
+    pub fn smoothed_turn_rate_rad_s(&self) -> Option<f64> {
+        self.heading_slope(self.params.trend_window_reports)
+            .map(|(slope, _)| slope)
+    }
+
+    /// The last evaluation.
+    pub fn reading(&self) -> &GateReading {
+        &self.reading
+    }
+
+    /// Number of samples held.
+    pub fn len(&self) -> usize {
+        self.len
+    }
+
+    /// No samples held.
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+
+    /// The i-th newest sample (0 = newest).
+    fn newest(&self, i: usize) -> Option<&Sample> {
+        if i >= self.len {
+            return None;
+        }
+        self.samples
+            .get((self.head + self.len - 1 - i) % GATE_CAPACITY)
+    }
+
+    /// The newest `n` samples within `max_window_s` of the newest, oldest first.
+    fn window(&self, n: usize) -> impl Iterator<Item = &Sample> + Clone {
+        let newest_t = self.newest(0).map_or(f64::NEG_INFINITY, |s| s.t_s);
+        let max_age = self.params.max_window_s;
+        let mut count = 0;
+        while count < n.min(self.len) {
+            match self.newest(count) {
+                Some(s) if newest_t - s.t_s <= max_age => count += 1,
+                _ => break,
+            }
+        }
+        (0..count).rev().filter_map(move |i| self.newest(i))
+    }
+
+    /// Adds a velocity at `t_s` and re-evaluates every test. `measured`: the velocity comes
+    /// from a report (quantised, σ capped), not from a filter. A sample older than the
+    /// newest is ignored.
+    pub fn push(&mut self, t_s: f64, v: &Observed, measured: bool) -> &GateReading {
+        if !t_s.is_finite()
+            || !v.value.iter().chain(v.cov.iter()).all(|x| x.is_finite())
+            || self.newest(0).is_some_and(|s| t_s < s.t_s)
+        {
+            return &self.reading;
+        }
+        let p = &self.params;
+        let (ve, vn, vu) = (v.value.x, v.value.y, v.value.z);
+        let (quantum_h, quantum_u, cap) = if measured {
+            (
+                p.speed_quantum_mps.powi(2) / 12.0,
+                p.vrate_quantum_mps.powi(2) / 12.0,
+                p.max_velocity_sigma_mps.powi(2),
+            )
+        } else {
+            (0.0, 0.0, f64::INFINITY)
+        };
+        let var_h = (0.5 * (v.cov[(0, 0)] + v.cov[(1, 1)])).min(cap).max(0.0) + quantum_h;
+        let var_u = if v.cov[(2, 2)] < 0.5 * UNMEASURED_VARIANCE {
+            v.cov[(2, 2)].min(cap).max(0.0) + quantum_u
+        } else {
+            f64::INFINITY
+        };
+        let sample = Sample {
+            t_s,
+            speed_mps: ve.hypot(vn),
+            angle_rad: vn.atan2(ve),
+            vu_mps: vu,
+            var_h,
+            var_u,
+            measured,
+        };
+        if self.len == GATE_CAPACITY {
+            self.samples[self.head] = sample;
+            self.head = (self.head + 1) % GATE_CAPACITY;
+        } else {
+            let slot = (self.head + self.len) % GATE_CAPACITY;
+            self.samples[slot] = sample;
+            self.len += 1;
+        }
+        self.evaluate();
+        &self.reading
+    }
+
+    /// Least-squares slope of the unwrapped heading over the newest `n` samples and its σ;
+    /// `None` when fewer than 3 or when any is slower than `min_speed_mps`.
+    fn heading_slope(&self, n: usize) -> Option<(f64, f64)> {
+        let window = self.window(n);
+        if !window
+            .clone()
+            .all(|s| s.speed_mps >= self.params.min_speed_mps)
+        {
+            return None;
+        }
+        // Unwrap into a fixed buffer (the unwrapping carries state from sample to sample).
+        let mut buf = [(0.0, 0.0, 0.0); GATE_CAPACITY];
+        let mut count = 0;
+        let mut unwrapped = 0.0;
+        let mut previous: Option<f64> = None;
+        for (slot, s) in buf.iter_mut().zip(window) {
+            if let Some(prev) = previous {
+                unwrapped += wrap_pi(s.angle_rad - prev);
+            }
+            previous = Some(s.angle_rad);
+            *slot = (s.t_s, unwrapped, s.var_h / (s.speed_mps * s.speed_mps));
+            count += 1;
+        }
+        buf.get(..count).and_then(|b| ls_slope(b.iter().copied()))
+    }
+
+    fn evaluate(&mut self) {
+        let p = self.params;
+        let old = self.reading.flags;
+        let mut r = GateReading::default();
+
+        // Turn rate: slope of the unwrapped heading.
+        if let Some((slope, sigma)) = self.heading_slope(p.turn_window_reports) {
+            r.turn_rate_rad_s = Some(slope);
+            r.flags.turn = fires(
+                slope,
+                sigma,
+                p.turn_rate_deg_s.map(f64::to_radians),
+                old.turn,
+                &p,
+            );
+        }
+
+        // Along-track acceleration over the trend window, vertical rate over its own.
+        let trend = self
+            .window(p.trend_window_reports)
+            .filter(|s| s.measured)
+            .map(|s| (s.t_s, s.speed_mps, s.var_h));
+        if let Some((slope, sigma)) = ls_slope(trend) {
+            r.along_track_accel_mps2 = Some(slope);
+            r.flags.along_track =
+                fires(slope, sigma, p.along_track_accel_mps2, old.along_track, &p);
+        }
+        let (mut n, mut sum, mut var) = (0.0, 0.0, 0.0);
+        for s in self
+            .window(p.vertical_window_reports)
+            .filter(|s| s.measured && s.var_u.is_finite())
+        {
+            n += 1.0;
+            sum += s.vu_mps;
+            var += s.var_u;
+        }
+        if n > 0.0 {
+            let mean = sum / n;
+            let sigma = (var / n / n).sqrt();
+            r.vertical_rate_mps = Some(mean);
+            r.flags.vertical = fires(mean, sigma, p.vertical_rate_mps, old.vertical, &p);
+        }
+
+        // Paper 002: changes between the first and the last of the last N reports (only
+        // when one of its tests is configured).
+        let paper = [
+            p.speed_change_mps,
+            p.accel_change_mps2,
+            p.heading_change_deg,
+            p.pitch_change_deg,
+        ];
+        if paper.iter().any(Option::is_some) {
+            self.paper_changes(&mut r, old);
+        }
+        self.reading = r;
+    }
+
+    /// The paper's Δv, Δa, Δφ, Δβ over the last N reports into `r`.
+    fn paper_changes(&self, r: &mut GateReading, old: GateFlags) {
+        let p = &self.params;
+        let mut first: Option<&Sample> = None;
+        let mut last: Option<&Sample> = None;
+        let mut first_accel: Option<f64> = None;
+        let mut last_accel: Option<f64> = None;
+        let mut heading_change = 0.0;
+        for s in self.window(p.window_reports) {
+            if let Some(prev) = last {
+                heading_change += wrap_pi(s.angle_rad - prev.angle_rad);
+                let dt = s.t_s - prev.t_s;
+                if dt > 0.0 {
+                    let a = (s.speed_mps - prev.speed_mps) / dt;
+                    first_accel.get_or_insert(a);
+                    last_accel = Some(a);
+                }
+            }
+            first.get_or_insert(s);
+            last = Some(s);
+        }
+        if let (Some(f), Some(l)) = (first, last) {
+            r.pitch_rad = l.var_u.is_finite().then(|| l.vu_mps.atan2(l.speed_mps));
+            if !std::ptr::eq(f, l) {
+                let dv = l.speed_mps - f.speed_mps;
+                r.speed_change_mps = Some(dv);
+                r.flags.speed_change = fires(dv, 0.0, p.speed_change_mps, old.speed_change, p);
+                if f.speed_mps >= p.min_speed_mps && l.speed_mps >= p.min_speed_mps {
+                    r.heading_change_rad = Some(heading_change);
+                    r.flags.heading_change = fires(
+                        heading_change,
+                        0.0,
+                        p.heading_change_deg.map(f64::to_radians),
+                        old.heading_change,
+                        p,
+                    );
+                }
+                if f.var_u.is_finite() && l.var_u.is_finite() {
+                    let db = l.vu_mps.atan2(l.speed_mps) - f.vu_mps.atan2(f.speed_mps);
+                    r.pitch_change_rad = Some(db);
+                    r.flags.pitch_change = fires(
+                        db,
+                        0.0,
+                        p.pitch_change_deg.map(f64::to_radians),
+                        old.pitch_change,
+                        p,
+                    );
+                }
+            }
+        }
+        if let (Some(a0), Some(a1)) = (first_accel, last_accel) {
+            let da = a1 - a0;
+            r.accel_change_mps2 = Some(da);
+            r.flags.accel_change = fires(da, 0.0, p.accel_change_mps2, old.accel_change, p);
+        }
+    }
+}
+
+/// One test with significance and hysteresis: |stat| > λ and |stat| > kσ to fire; once
+/// fired, |stat| > ρλ and |stat| > ρkσ to stay (ρ = `release_ratio`).
+fn fires(stat: f64, sigma: f64, threshold: Option<f64>, was: bool, p: &GateParams) -> bool {
+    let Some(lambda) = threshold else {
+        return false;
+    };
+    let scale = if was { p.release_ratio } else { 1.0 };
+    let a = stat.abs();
+    a > scale * lambda && a > scale * p.significance_sigmas * sigma
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::{Matrix3, Vector3};
+    use rand::rngs::StdRng;
+    use rand::SeedableRng;
+    use rand_distr::{Distribution, Normal};
+
+    /// A velocity report as ADS-B would send it: each component with Gaussian noise σ, then
+    /// quantised to 1 kt (horizontal) and 64 ft/min (vertical).
+    fn report(v: Vector3<f64>, sigma: f64, rng: &mut StdRng) -> Observed {
+        let n = Normal::new(0.0, sigma).unwrap();
+        let q = |x: f64, lsb: f64| (x / lsb).round() * lsb;
+        Observed {
+            value: Vector3::new(
+                q(v.x + n.sample(rng), KNOT_MPS),
+                q(v.y + n.sample(rng), KNOT_MPS),
+                q(v.z + n.sample(rng) * 0.5, VRATE_LSB_MPS),
+            ),
+            cov: Matrix3::from_diagonal(&Vector3::new(sigma * sigma, sigma * sigma, 0.0625)),
+        }
+    }
+
+    /// Fraction of reports (after the first 12) at which the gate reports a manoeuvre, for
+    /// a velocity profile v(t) reported every 0.5 s.
+    fn fire_rate(
+        params: GateParams,
+        v: impl Fn(f64) -> Vector3<f64>,
+        seed: u64,
+    ) -> (f64, GateReading) {
+        let mut rng = StdRng::seed_from_u64(seed);
+        let mut gate = Gate::new(params);
+        let (mut fired, mut total) = (0, 0);
+        let mut last = GateReading::default();
+        for k in 0..400 {
+            let t = 0.5 * k as f64;
+            let r = *gate.push(t, &report(v(t), 0.5, &mut rng), true);
+            if k >= 12 {
+                total += 1;
+                fired += usize::from(r.manoeuvre());
+                last = r;
+            }
+        }
+        (fired as f64 / total as f64, last)
+    }
+
+    fn heading_speed(heading_deg: f64, speed: f64, vu: f64) -> Vector3<f64> {
+        // Heading clockwise from north.
+        let h = heading_deg.to_radians();
+        Vector3::new(speed * h.sin(), speed * h.cos(), vu)
+    }
+
+    #[test]
+    fn paper_preset_has_the_printed_thresholds() {
+        let p = GateParams::paper002();
+        assert_eq!(p.window_reports, 5);
+        assert_eq!(p.speed_change_mps, Some(10.0));
+        assert_eq!(p.accel_change_mps2, Some(5.0));
+        assert_eq!(p.heading_change_deg, Some(1.0));
+        assert_eq!(p.pitch_change_deg, Some(5.0));
+    }
+
+    #[test]
+    fn straight_level_flight_with_quantised_noisy_reports_does_not_fire() {
+        for (speed, seed) in [(70.0, 1), (120.0, 2), (230.0, 3)] {
+            let (rate, _) = fire_rate(
+                GateParams::default(),
+                |_| heading_speed(37.0, speed, 0.0),
+                seed,
+            );
+            assert!(rate < 0.005, "{speed} m/s: fired on {rate}");
+        }
+    }
+
+    #[test]
+    fn default_gate_catches_what_airliners_fly_and_the_paper_preset_does_not() {
+        // 1.2 m/s² along track from 120 m/s; a 3° climb at 120 m/s (6.3 m/s); a 1.2°/s turn
+        // at 230 m/s (25° bank); each flown steadily for the whole run.
+        let accel = |t: f64| heading_speed(80.0, 120.0 + 1.0 * t, 0.0);
+        let climb = |_t: f64| heading_speed(80.0, 120.0, 120.0 * 3f64.to_radians().tan());
+        let turn = |t: f64| heading_speed(80.0 + 1.2 * t, 230.0, 0.0);
+        type Profile<'a> = &'a dyn Fn(f64) -> Vector3<f64>;
+        let cases: [(&str, Profile, FlightMode); 3] = [
+            ("acceleration 1 m/s²", &accel, FlightMode::Ca),
+            ("climb 3°", &climb, FlightMode::Ch),
+            ("turn 1.2°/s", &turn, FlightMode::Ct),
+        ];
+        for (name, v, mode) in cases {
+            let (rate, last) = fire_rate(GateParams::default(), v, 7);
+            assert!(rate > 0.95, "{name}: default gate fired on {rate}");
+            assert_eq!(last.label().map(|l| l.0), Some(mode), "{name}");
+            let (paper_rate, _) = fire_rate(GateParams::paper002(), v, 7);
+            eprintln!("gate {name}: default fires {rate:.3}, paper002 {paper_rate:.3}");
+        }
+        // The paper's thresholds miss the climb and the acceleration: they fire no more
+        // often than on noise alone (Δa of differentiated speeds has σ ≈ 2 m/s² here).
+        let straight = |_t: f64| heading_speed(80.0, 120.0, 0.0);
+        let (noise, _) = fire_rate(GateParams::paper002(), straight, 7);
+        let (r, _) = fire_rate(GateParams::paper002(), climb, 7);
+        assert!(r < 0.05 && r <= noise + 0.02, "{r} vs {noise}");
+        let accel_1_2 = |t: f64| heading_speed(80.0, 120.0 + 1.2 * t, 0.0);
+        let (r, _) = fire_rate(GateParams::paper002(), accel_1_2, 7);
+        assert!(r < 0.05 && r <= noise + 0.02, "{r} vs {noise}");
+        eprintln!("gate paper002 on straight level flight: fires {noise:.3}");
+        let (r, last) = fire_rate(GateParams::default(), accel_1_2, 7);
+        assert!(r > 0.99 && last.speed() == SpeedTrend::Increasing);
+    }
+
+    #[test]
+    fn directions_and_labels() {
+        let (_, left) = fire_rate(
+            GateParams::default(),
+            |t| heading_speed(10.0 - 3.0 * t, 70.0, 0.0),
+            3,
+        );
+        assert_eq!(left.lateral(), Lateral::Left);
+        assert_eq!(
+            left.label(),
+            Some((FlightMode::Ct, Some(TurnDirection::Left)))
+        );
+        assert!((left.turn_rate_rad_s.unwrap().to_degrees() - 3.0).abs() < 0.5);
+        let (_, right) = fire_rate(
+            GateParams::default(),
+            |t| heading_speed(10.0 + 3.0 * t, 70.0, 0.0),
+            3,
+        );
+        assert_eq!(right.lateral(), Lateral::Right);
+        let (_, chca) = fire_rate(
+            GateParams::default(),
+            |t| heading_speed(10.0, 70.0 + t, -5.0),
+            3,
+        );
+        assert_eq!(chca.label(), Some((FlightMode::Chca, None)));
+        assert_eq!(chca.vertical(), VerticalTrend::Descent);
+        // The paper preset's heading test sees a 3°/s turn (3° over 4 half-second gaps... 6°).
+        let (_, paper) = fire_rate(
+            GateParams::paper002(),
+            |t| heading_speed(10.0 + 3.0 * t, 70.0, 0.0),
+            3,
+        );
+        assert_eq!(
+            paper.label(),
+            Some((FlightMode::Ct, Some(TurnDirection::Right)))
+        );
+        assert!((paper.heading_change_rad.unwrap().to_degrees() + 6.0).abs() < 1.5);
+    }
+
+    #[test]
+    fn heading_wraps_through_north_and_slow_aircraft_skip_turn_tests() {
+        let mut gate = Gate::new(GateParams::default());
+        let cov = Matrix3::identity() * 0.01;
+        // Headings 358°, 359°, 0°, 1°, 2° at 1 s: 1°/s clockwise (right), no 360° jump.
+        for (k, h) in [358.0, 359.0, 0.0, 1.0, 2.0].into_iter().enumerate() {
+            gate.push(
+                k as f64,
+                &Observed {
+                    value: heading_speed(h, 100.0, 0.0),
+                    cov,
+                },
+                false,
+            );
+        }
+        let r = gate.reading();
+        assert!((r.turn_rate_rad_s.unwrap().to_degrees() + 1.0).abs() < 1e-9);
+        assert_eq!(r.lateral(), Lateral::Right);
+        // On the ground at 3 m/s the heading is noise: no turn test.
+        let mut gate = Gate::new(GateParams::default());
+        for k in 0..10 {
+            gate.push(
+                k as f64,
+                &Observed {
+                    value: heading_speed(40.0 * k as f64, 3.0, 0.0),
+                    cov,
+                },
+                false,
+            );
+        }
+        assert_eq!(gate.reading().turn_rate_rad_s, None);
+        assert!(!gate.reading().flags.turn);
+    }
+
+    #[test]
+    fn hysteresis_keeps_a_turn_at_the_threshold_from_flickering() {
+        let params = GateParams::default();
+        let cov = Matrix3::identity() * 1e-6;
+        // A turn rate alternating 0.45 and 0.55 °/s (around λ = 0.5): once fired, it holds.
+        let mut gate = Gate::new(params);
+        let mut heading = 0.0;
+        let mut fired_once = false;
+        let mut dropped_after = false;
+        for k in 0..60 {
+            heading += if (k / 5) % 2 == 0 { 0.55 } else { 0.45 } * 0.5;
+            let r = *gate.push(
+                0.5 * k as f64,
+                &Observed {
+                    value: heading_speed(heading, 100.0, 0.0),
+                    cov,
+                },
+                false,
+            );
+            if r.flags.turn {
+                fired_once = true;
+            } else if fired_once {
+                dropped_after = true;
+            }
+        }
+        assert!(fired_once && !dropped_after);
+        // Without hysteresis it flickers.
+        let mut gate = Gate::new(GateParams {
+            release_ratio: 1.0,
+            ..params
+        });
+        let mut heading = 0.0;
+        let mut toggles = 0;
+        let mut was = false;
+        for k in 0..60 {
+            heading += if (k / 5) % 2 == 0 { 0.55 } else { 0.45 } * 0.5;
+            let r = *gate.push(
+                0.5 * k as f64,
+                &Observed {
+                    value: heading_speed(heading, 100.0, 0.0),
+                    cov,
+                },
+                false,
+            );
+            toggles += usize::from(r.flags.turn != was);
+            was = r.flags.turn;
+        }
+        assert!(toggles > 4, "{toggles}");
+    }
+
+    #[test]
+    fn unmeasured_vertical_rate_and_old_samples_are_ignored() {
+        let mut gate = Gate::new(GateParams::default());
+        let mut cov = Matrix3::identity() * 0.25;
+        cov[(2, 2)] = UNMEASURED_VARIANCE;
+        for k in 0..12 {
+            gate.push(
+                k as f64 * 0.5,
+                &Observed {
+                    value: Vector3::new(100.0, 0.0, 50.0),
+                    cov,
+                },
+                true,
+            );
+        }
+        assert_eq!(gate.reading().vertical_rate_mps, None);
+        assert!(!gate.reading().manoeuvre());
+        // Out-of-order and non-finite samples change nothing.
+        let before = gate.clone();
+        gate.push(
+            1.0,
+            &Observed {
+                value: Vector3::new(0.0, 100.0, 0.0),
+                cov,
+            },
+            true,
+        );
+        gate.push(
+            f64::NAN,
+            &Observed {
+                value: Vector3::new(0.0, 100.0, 0.0),
+                cov,
+            },
+            true,
+        );
+        assert_eq!(gate, before);
+        // After a 20 s gap the old samples leave the window (15 s).
+        gate.push(
+            25.5,
+            &Observed {
+                value: Vector3::new(0.0, 100.0, 0.0),
+                cov,
+            },
+            true,
+        );
+        assert_eq!(gate.reading().turn_rate_rad_s, None);
+    }
+}

@@ -106,6 +106,41 @@ impl HybridParams {
     }
 }
 
+/// Mean Earth radius, m (IUGG R1), for [`to_local_axes`].
+const EARTH_RADIUS_M: f64 = 6_371_008.8;
+
+/// A velocity given in the track frame's axes, turned into the east-north-up axes at `pos_m`
+/// (a position in that frame), for the gate's tests.
+///
+/// The filter works in one fixed tangent plane per track, which is exact Cartesian geometry;
+/// but there a level aircraft d metres from the origin has a "vertical" velocity of about
+/// −v·d/R (10 m/s at 300 km), and the gate's climb test would fire on every cruise. The
+/// labels are about the aircraft's own vertical, so the gate reads the velocity rotated by
+/// the minimal rotation taking the frame's up to the local up of a spherical Earth,
+/// normalize(p + R·ẑ). The sphere's normal differs from the ellipsoid's by under 1 % of the
+/// tilt (0.2 m/s at 600 km and 230 m/s); the meridian convergence the minimal rotation leaves
+/// in the heading is constant over the gate's window, whose tests read changes.
+fn to_local_axes(pos_m: &Vector3<f64>, v: &Observed) -> Observed {
+    let z = Vector3::z();
+    let up = (pos_m + z * EARTH_RADIUS_M).normalize();
+    let axis = z.cross(&up);
+    let sin = axis.norm();
+    if !(sin > 1e-12) || !up.iter().all(|c| c.is_finite()) {
+        return *v;
+    }
+    let cos = z.dot(&up);
+    let k = axis / sin;
+    // Rodrigues: R = I cosθ + sinθ [k]x + (1 − cosθ) k kᵀ takes ẑ to `up`; the local axes are
+    // R's columns, so local components are Rᵀ v.
+    let kx = Matrix3::new(0.0, -k.z, k.y, k.z, 0.0, -k.x, -k.y, k.x, 0.0);
+    let r = Matrix3::identity() * cos + kx * sin + k * k.transpose() * (1.0 - cos);
+    let rt = r.transpose();
+    Observed {
+        value: rt * v.value,
+        cov: rt * v.cov * r,
+    }
+}
+
 /// Which filter runs.
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[allow(
@@ -227,7 +262,8 @@ impl HybridTracker {
         self.diverging = false;
         self.last_velocity_t_s = None;
         if let Some(v) = velocity {
-            self.gate.push(t_s, v, true);
+            let local = to_local_axes(&x.fixed_rows::<3>(0).into_owned(), v);
+            self.gate.push(t_s, &local, true);
             self.last_velocity_t_s = Some(t_s);
         }
     }
@@ -292,16 +328,17 @@ impl HybridTracker {
     /// K S Kᵀ = P(k|k−1) − P(k|k). That, not P(k|k), is the per-sample variance the gate's
     /// least-squares significance test assumes, so it is what a derived sample carries.
     fn feed_gate(&mut self, m: &Measurement) {
+        let (x, _) = self.state6();
+        let pos = x.fixed_rows::<3>(0).into_owned();
         if let Some(v) = &m.velocity {
-            self.gate.push(m.t_s, v, true);
+            self.gate.push(m.t_s, &to_local_axes(&pos, v), true);
             self.last_velocity_t_s = Some(m.t_s);
         } else if self.velocity_stale(m.t_s) {
-            let (x, _) = self.state6();
             let derived = Observed {
                 value: x.fixed_rows::<3>(3).into_owned(),
                 cov: self.velocity_correction_cov,
             };
-            self.gate.push(m.t_s, &derived, false);
+            self.gate.push(m.t_s, &to_local_axes(&pos, &derived), false);
         }
     }
 
@@ -505,6 +542,33 @@ impl Tracker for HybridTracker {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn local_axes_take_out_the_tilt_of_a_distant_level_flight() {
+        // On the sphere, 300 km east of the origin (angle θ = d/R), level flight due east at
+        // 230 m/s has frame components v(cosθ, 0, −sinθ): locally it is (230, 0, 0).
+        let theta = 300_000.0 / EARTH_RADIUS_M;
+        let pos = Vector3::new(
+            EARTH_RADIUS_M * theta.sin(),
+            0.0,
+            EARTH_RADIUS_M * theta.cos() - EARTH_RADIUS_M,
+        );
+        let v = Observed {
+            value: 230.0 * Vector3::new(theta.cos(), 0.0, -theta.sin()),
+            cov: Matrix3::identity(),
+        };
+        let local = to_local_axes(&pos, &v);
+        assert!(
+            (local.value - Vector3::new(230.0, 0.0, 0.0)).norm() < 1e-9,
+            "{}",
+            local.value
+        );
+        // Rotation keeps the covariance's trace.
+        assert!((local.cov.trace() - 3.0).abs() < 1e-12);
+        // At the origin nothing changes.
+        let same = to_local_axes(&Vector3::zeros(), &v);
+        assert_eq!(same.value, v.value);
+    }
     use crate::track::gate::{KNOT_MPS, VRATE_LSB_MPS};
     use crate::track::imm::{ImmTracker, ImmTrackerParams};
     use crate::track::{SpeedTrend, VerticalTrend, UNMEASURED_VARIANCE};

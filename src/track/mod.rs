@@ -5,9 +5,11 @@
 //! for one aircraft and is what the daemon drives. Everything is in metres and seconds in a
 //! local east-north-up plane ([`geo`]); dt is always an argument (ADS-B reports are irregular).
 
+pub(crate) mod alt;
 pub mod cv;
 pub mod geo;
 pub mod kalman;
+pub mod singer;
 
 use nalgebra::{Matrix3, Vector3};
 

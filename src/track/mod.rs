@@ -8,6 +8,7 @@
 pub(crate) mod alt;
 pub mod cv;
 pub mod geo;
+pub mod jerk;
 pub mod kalman;
 pub mod singer;
 

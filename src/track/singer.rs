@@ -36,23 +36,37 @@ pub const SERIES_THRESHOLD: f64 = 1.0;
 /// Terms of the series: the k-th term of φ_a is below x^k/k!, 1/30! ≈ 4e-33.
 const SERIES_TERMS: usize = 30;
 
-fn factorial(n: usize) -> f64 {
-    (1..=n).fold(1.0, |acc, k| acc * k as f64)
+/// 1/n! for n < 64, built at compile time (the series are on the filter's hot path).
+const INV_FACTORIAL: [f64; 64] = {
+    let mut t = [1.0; 64];
+    let mut n = 1;
+    while n < 64 {
+        t[n] = t[n - 1] / n as f64;
+        n += 1;
+    }
+    t
+};
+
+fn inv_factorial(n: usize) -> f64 {
+    INV_FACTORIAL.get(n).copied().unwrap_or(0.0)
 }
 
 /// φ_a(x) = Σ_k (−x)^k/(k+a)!, the last-column kernel of the chain (module doc).
 pub fn phi_a(a: usize, x: f64) -> f64 {
     if x.abs() < SERIES_THRESHOLD {
         let mut sum = 0.0;
-        let mut term = 1.0 / factorial(a);
+        let mut term = inv_factorial(a);
         for k in 0..SERIES_TERMS {
             sum += term;
+            if term.abs() <= 1e-18 * sum.abs() {
+                break;
+            }
             term *= -x / (k + a + 1) as f64;
         }
         sum
     } else {
         let sign = if a % 2 == 0 { 1.0 } else { -1.0 };
-        let poly: f64 = (0..a).map(|n| (-x).powi(n as i32) / factorial(n)).sum();
+        let poly: f64 = (0..a).map(|n| (-x).powi(n as i32) * inv_factorial(n)).sum();
         sign * ((-x).exp() - poly) / x.powi(a as i32)
     }
 }
@@ -66,10 +80,14 @@ fn q_series(ai: usize, aj: usize, alpha: f64, t: f64) -> f64 {
     let mut xn = 1.0;
     for n in 0..SERIES_TERMS {
         let c: f64 = (0..=n)
-            .map(|k| 1.0 / (factorial(k + ai) * factorial(n - k + aj)))
+            .map(|k| inv_factorial(k + ai) * inv_factorial(n - k + aj))
             .sum();
         let sign = if n % 2 == 0 { 1.0 } else { -1.0 };
-        sum += sign * c * xn / (big_a + n + 1) as f64;
+        let term = sign * c * xn / (big_a + n + 1) as f64;
+        sum += term;
+        if term.abs() <= 1e-18 * sum.abs() {
+            break;
+        }
         xn *= x;
     }
     t.powi(big_a as i32 + 1) * sum
@@ -83,7 +101,7 @@ fn q_closed(ai: usize, aj: usize, alpha: f64, t: f64) -> f64 {
     let cross = |a: usize| -> f64 {
         (0..a)
             .map(|n| {
-                let partial: f64 = (0..=n).map(|k| x.powi(k as i32) / factorial(k)).sum();
+                let partial: f64 = (0..=n).map(|k| x.powi(k as i32) * inv_factorial(k)).sum();
                 let sign = if n % 2 == 0 { 1.0 } else { -1.0 };
                 sign * (1.0 - ex * partial)
             })
@@ -94,7 +112,7 @@ fn q_closed(ai: usize, aj: usize, alpha: f64, t: f64) -> f64 {
         for m in 0..aj {
             let sign = if (n + m) % 2 == 0 { 1.0 } else { -1.0 };
             let e = n + m + 1;
-            poly += sign * x.powi(e as i32) / (factorial(n) * factorial(m) * e as f64);
+            poly += sign * x.powi(e as i32) * inv_factorial(n) * inv_factorial(m) / e as f64;
         }
     }
     let integral = (1.0 - (-2.0 * x).exp()) / 2.0 - cross(aj) - cross(ai) + poly;
@@ -123,7 +141,7 @@ pub fn chain<const M: usize>(alpha: f64, dt_s: f64) -> Chain<M> {
     for i in 0..M {
         let ai = M - 1 - i;
         for j in i..M.saturating_sub(1) {
-            f[(i, j)] = dt_s.powi((j - i) as i32) / factorial(j - i);
+            f[(i, j)] = dt_s.powi((j - i) as i32) * inv_factorial(j - i);
         }
         f[(i, M - 1)] = dt_s.powi(ai as i32) * phi_a(ai, x);
         g[i] = x * dt_s.powi(ai as i32) * phi_a(ai + 1, x);

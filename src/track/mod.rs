@@ -6,6 +6,7 @@
 //! local east-north-up plane ([`geo`]); dt is always an argument (ADS-B reports are irregular).
 
 pub(crate) mod alt;
+pub mod cubature;
 pub mod cv;
 pub mod geo;
 pub mod jerk;

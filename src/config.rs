@@ -124,8 +124,24 @@ pub struct TrackerConfig {
 /// The tracker algorithms the daemon can run: `hybrid` (paper 002's threshold-gated CV
 /// Kalman / IMM with paper 000's divergence suppression, gate tuned for airliners; the
 /// default), `hybrid-paper002` (the same with the paper's printed gate thresholds),
-/// `kalman-cv` (CV Kalman filter alone) and `imm` (the IMM alone).
-pub const ALGORITHMS: &[&str] = &["hybrid", "hybrid-paper002", "kalman-cv", "imm"];
+/// `kalman-cv` (CV Kalman filter alone) and `imm` (the IMM alone); then the other papers':
+/// `singer` (paper 000, with its divergence suppressor) and `singer-nosupp`, `cs-jerk`
+/// (paper 001's improved CS-Jerk), `cs-jerk-plain` and `jerk`, `vsimm-srckf` (paper 003),
+/// `imm-ckf` and `imm-srckf`.
+pub const ALGORITHMS: &[&str] = &[
+    "hybrid",
+    "hybrid-paper002",
+    "kalman-cv",
+    "imm",
+    "singer",
+    "singer-nosupp",
+    "cs-jerk",
+    "cs-jerk-plain",
+    "jerk",
+    "vsimm-srckf",
+    "imm-ckf",
+    "imm-srckf",
+];
 
 impl Config {
     /// The embedded defaults.

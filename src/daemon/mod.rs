@@ -96,8 +96,10 @@ pub fn build_tracker(cfg: &TrackerConfig) -> Box<dyn Tracker> {
         })),
         "imm" => Box::new(ImmTracker::new(ImmTrackerParams::default())),
         "hybrid-paper002" => Box::new(HybridTracker::new(HybridParams::paper002())),
-        // "hybrid", the default; validation refuses unknown names before we get here.
-        _ => Box::new(HybridTracker::new(HybridParams::default())),
+        // The other papers' trackers; "hybrid", the default, for anything else (validation
+        // refuses unknown names before we get here).
+        other => crate::track::build_alternative(other)
+            .unwrap_or_else(|| Box::new(HybridTracker::new(HybridParams::default()))),
     }
 }
 

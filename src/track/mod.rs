@@ -5,14 +5,19 @@
 //! for one aircraft and is what the daemon drives. Everything is in metres and seconds in a
 //! local east-north-up plane ([`geo`]); dt is always an argument (ADS-B reports are irregular).
 
+pub(crate) mod alt;
+pub mod cubature;
 pub mod cv;
 pub mod divergence;
 pub mod gate;
 pub mod geo;
 pub mod hybrid;
 pub mod imm;
+pub mod jerk;
 pub mod kalman;
 pub mod models;
+pub mod singer;
+pub mod vsimm;
 
 use nalgebra::{Matrix3, Vector3};
 
@@ -208,4 +213,62 @@ pub trait Tracker: Send {
     /// The estimate extrapolated by the current model to `t_s` (>= the track's time), with the
     /// process noise added to its covariance; `None` before initiation.
     fn predict(&self, t_s: f64) -> Option<Estimate>;
+}
+
+/// The alternative trackers of papers 000, 001 and 003 by name, with default parameters:
+/// "singer", "singer-nosupp" ([`singer`]), "cs-jerk", "cs-jerk-plain", "jerk" ([`jerk`]),
+/// "vsimm-srckf", "imm-ckf", "imm-srckf" ([`vsimm`]). `None` for any other name.
+pub fn build_alternative(name: &str) -> Option<Box<dyn Tracker>> {
+    use jerk::{JerkParams, JerkTracker, JerkVariant};
+    use singer::{SingerParams, SingerTracker};
+    use vsimm::{Variant, Vsimm, VsimmParams};
+    let jerk = |variant| -> Box<dyn Tracker> {
+        Box::new(JerkTracker::new(JerkParams {
+            variant,
+            ..JerkParams::default()
+        }))
+    };
+    let imm = |variant| -> Box<dyn Tracker> {
+        Box::new(Vsimm::new(VsimmParams {
+            variant,
+            ..VsimmParams::default()
+        }))
+    };
+    Some(match name {
+        singer::NAME => Box::new(SingerTracker::default()),
+        singer::NAME_NO_SUPPRESSION => Box::new(SingerTracker::new(SingerParams {
+            suppression: false,
+            ..SingerParams::default()
+        })),
+        jerk::NAME_CS_JERK => jerk(JerkVariant::CsJerkImproved),
+        jerk::NAME_CS_JERK_PLAIN => jerk(JerkVariant::CsJerkPlain),
+        jerk::NAME_JERK => jerk(JerkVariant::Jerk),
+        vsimm::NAME_VSIMM => imm(Variant::VsimmSrckf),
+        vsimm::NAME_IMM_CKF => imm(Variant::ImmCkf),
+        vsimm::NAME_IMM_SRCKF => imm(Variant::ImmSrckf),
+        _ => return None,
+    })
+}
+
+#[cfg(test)]
+mod alternative_tests {
+    #[test]
+    fn every_alternative_builds_under_its_own_name() {
+        let names = [
+            "singer",
+            "singer-nosupp",
+            "cs-jerk",
+            "cs-jerk-plain",
+            "jerk",
+            "vsimm-srckf",
+            "imm-ckf",
+            "imm-srckf",
+        ];
+        for name in names {
+            let t = super::build_alternative(name).unwrap();
+            assert_eq!(t.name(), name);
+            assert!(t.estimate().is_none());
+        }
+        assert!(super::build_alternative("kalman-cv").is_none());
+    }
 }

@@ -125,7 +125,7 @@ fn to_local_axes(pos_m: &Vector3<f64>, v: &Observed) -> Observed {
     let up = (pos_m + z * EARTH_RADIUS_M).normalize();
     let axis = z.cross(&up);
     let sin = axis.norm();
-    if !(sin > 1e-12) || !up.iter().all(|c| c.is_finite()) {
+    if sin.is_nan() || sin <= 1e-12 || !up.iter().all(|c| c.is_finite()) {
         return *v;
     }
     let cos = z.dot(&up);

@@ -83,7 +83,7 @@ enum Command {
         seed: u64,
         #[arg(long, requires = "tracks")]
         truth: Option<PathBuf>,
-        #[arg(long, requires = "truth")]
+        #[arg(long)]
         tracks: Option<PathBuf>,
         /// The recording the tracks came from: its decoded positions give the raw-measurement
         /// errors to compare with (with --truth/--tracks).
@@ -218,7 +218,20 @@ fn evaluate(
                 }],
             )
         }
-        _ => bail!("evaluate needs --scenario NAME, or --truth FILE and --tracks FILE"),
+        (None, None, Some(tracks)) => {
+            // A real recording has no truth: plot each aircraft's mode timeline.
+            let e = io::parse_tracks(&io::read(&tracks)?, &tracks.display().to_string())?;
+            for (icao, est) in &e {
+                let p = plot::plot_timeline(&out.join(icao.to_string()), &icao.to_string(), est)
+                    .map_err(anyhow::Error::msg)?;
+                eprintln!("wrote {}", p.display());
+            }
+            return Ok(());
+        }
+        _ => bail!(
+            "evaluate needs --scenario NAME, or --truth FILE and --tracks FILE (or --tracks \
+             alone for mode timelines)"
+        ),
     };
     print!("{}", report::markdown(&title, &results));
     let json_path = out.join("results.json");

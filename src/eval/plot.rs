@@ -246,3 +246,68 @@ pub fn plot_run(
     written.push(modes_path);
     Ok(written)
 }
+
+/// The flight-mode timeline of one aircraft of a real recording (no truth): its altitude
+/// profile, and its label at each update. Writes `PREFIX-timeline.svg`.
+pub fn plot_timeline(
+    prefix: &Path,
+    title: &str,
+    estimates: &[super::score::EstimateSample],
+) -> Result<PathBuf, String> {
+    let mut p = prefix.as_os_str().to_owned();
+    p.push("-timeline.svg");
+    let path = PathBuf::from(p);
+    let (Some(first), Some(last)) = (estimates.first(), estimates.last()) else {
+        return Err("no estimates to plot".into());
+    };
+    let t0 = first.t;
+    let span_min = ((last.t - t0) / 60.0).max(1.0);
+    let alt_max = estimates.iter().map(|e| e.alt_m).fold(1000.0_f64, f64::max) * 1.05;
+    let svg_path = path.clone();
+    let root = SVGBackend::new(&svg_path, (1100, 520)).into_drawing_area();
+    root.fill(&WHITE).map_err(err)?;
+    let (upper, lower) = root.split_vertically(300);
+    let mut c = ChartBuilder::on(&upper)
+        .caption(format!("{title}: altitude"), ("sans-serif", 20))
+        .margin(10)
+        .x_label_area_size(25)
+        .y_label_area_size(60)
+        .build_cartesian_2d(0.0..span_min, 0.0..alt_max)
+        .map_err(err)?;
+    c.configure_mesh()
+        .y_desc("altitude, m")
+        .draw()
+        .map_err(err)?;
+    c.draw_series(LineSeries::new(
+        estimates.iter().map(|e| ((e.t - t0) / 60.0, e.alt_m)),
+        PALETTE[0].stroke_width(2),
+    ))
+    .map_err(err)?;
+    let mut m = ChartBuilder::on(&lower)
+        .caption("flight-mode label", ("sans-serif", 16))
+        .margin(10)
+        .x_label_area_size(35)
+        .y_label_area_size(60)
+        .build_cartesian_2d(0.0..span_min, -0.5..4.5)
+        .map_err(err)?;
+    m.configure_mesh()
+        .x_desc("time, min")
+        .y_labels(5)
+        .y_label_formatter(&|y: &f64| {
+            ["CV", "CA", "CT", "CH", "CHCA"]
+                .get(y.round().clamp(0.0, 4.0) as usize)
+                .map_or(String::new(), |s| s.to_string())
+        })
+        .draw()
+        .map_err(err)?;
+    m.draw_series(estimates.iter().map(|e| {
+        Circle::new(
+            ((e.t - t0) / 60.0, mode_row(e.mode)),
+            1,
+            PALETTE[1].filled(),
+        )
+    }))
+    .map_err(err)?;
+    root.present().map_err(err)?;
+    Ok(path)
+}

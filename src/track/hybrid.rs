@@ -383,11 +383,19 @@ impl HybridTracker {
         let trigger = matches!(self.branch, Branch::Cv { .. })
             && self.params.divergence_trigger > 0
             && self.cv_divergence_run >= self.params.divergence_trigger;
-        if reading.manoeuvre() || trigger {
+        // A steady climb or descent at constant ground velocity (CH) is constant velocity in
+        // three dimensions: the CV Kalman filter models it exactly, so only a horizontal
+        // manoeuvre (or a diverging CV filter) pays for the IMM. Terminal-area traffic climbs
+        // and descends most of the time: on the LAX recording this keeps most updates cheap.
+        let f = reading.flags;
+        let horizontal =
+            f.turn || f.along_track || f.speed_change || f.accel_change || f.heading_change;
+        let needs_imm = (reading.manoeuvre() && horizontal) || trigger;
+        if needs_imm {
             self.last_fire_t_s = t_s;
         }
         match self.branch {
-            Branch::Cv { x, p } if reading.manoeuvre() || trigger => {
+            Branch::Cv { x, p } if needs_imm => {
                 let mut x9 = State9::zeros();
                 x9.fixed_rows_mut::<6>(0).copy_from(&x);
                 if reading.flags.along_track {
@@ -444,7 +452,17 @@ impl HybridTracker {
                 None => Labels::CV,
             };
         } else {
-            self.labels = Labels::CV;
+            // In the CV filter: level and straight, or a steady climb/descent the gate saw.
+            self.labels = match reading.label() {
+                Some((mode, turn)) => Labels {
+                    mode,
+                    turn,
+                    lateral: reading.lateral(),
+                    speed: reading.speed(),
+                    vertical: reading.vertical(),
+                },
+                None => Labels::CV,
+            };
         }
     }
 

@@ -963,10 +963,14 @@ mod tests {
                 cpu.as_secs_f64() * 1e6 / n as f64,
                 model_steps as f64 / n as f64
             );
-            rows.push((rx, ry, cpu));
+            rows.push((rx, ry, model_steps));
             assert!(rx < 50.0 && ry < 50.0, "{variant:?}: {rx} {ry}");
         }
-        // VSIMM runs fewer models than the fixed structures.
-        assert!(rows[0].2 < rows[2].2, "VSIMM not cheaper than IMM-SRCKF");
+        // VSIMM runs fewer models than the fixed structures (counted, not timed: timings are
+        // for the benchmarks, this machine's load makes them flaky in a test).
+        assert!(
+            rows[0].2 < rows[2].2,
+            "VSIMM ran no fewer model steps than IMM-SRCKF"
+        );
     }
 }

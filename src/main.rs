@@ -211,11 +211,7 @@ fn evaluate(
             }
             (
                 format!("{} against {}", tracks.display(), truth.display()),
-                vec![report::TrackerResult {
-                    tracker: stem,
-                    runs: 1,
-                    scores,
-                }],
+                vec![report::TrackerResult::new(stem, 1, scores)],
             )
         }
         (None, None, Some(tracks)) => {

@@ -162,11 +162,7 @@ pub fn monte_carlo(
         results: trackers
             .iter()
             .zip(merged)
-            .map(|(t, scores)| TrackerResult {
-                tracker: t.clone(),
-                runs,
-                scores,
-            })
+            .map(|(t, scores)| TrackerResult::new(t.clone(), runs, scores))
             .collect(),
         first_truth,
         first_traces,

@@ -10,6 +10,21 @@ pub struct TrackerResult {
     pub tracker: String,
     pub runs: u64,
     pub scores: Scores,
+    /// Median and 99th percentile of the CPU time per update, ns.
+    pub cpu_ns_median_p99: Option<(u64, u64)>,
+}
+
+impl TrackerResult {
+    /// A result with its CPU percentiles taken from the scores.
+    pub fn new(tracker: String, runs: u64, scores: Scores) -> Self {
+        let cpu_ns_median_p99 = scores.cpu_percentiles_ns();
+        Self {
+            tracker,
+            runs,
+            scores,
+            cpu_ns_median_p99,
+        }
+    }
 }
 
 fn f(v: Option<f64>, digits: usize) -> String {

@@ -181,7 +181,8 @@ pub struct Scores {
     pub false_switches: u64,
     /// Updates while the truth was CV (denominator of the false-switch rate).
     pub cv_updates: u64,
-    /// Per-update wall time, ns.
+    /// Per-update wall time, ns (not serialised: the report gives its percentiles).
+    #[serde(skip)]
     pub cpu_ns: Vec<u64>,
     /// Largest horizontal position error seen, m.
     pub peak_pos_err_m: f64,

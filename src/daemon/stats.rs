@@ -153,20 +153,8 @@ impl Stats {
 
     /// Adds a decoder's counters accumulated since the last flush (`delta` = now - before).
     pub fn add_decode(&self, now: &DecodeStats, before: &DecodeStats) {
-        for (df, (a, b)) in now.by_df.iter().zip(before.by_df.iter()).enumerate() {
-            if a > b {
-                self.frames_by_df
-                    .get_or_create(&vec![("df", df.to_string())])
-                    .inc_by(a - b);
-            }
-        }
-        for (tc, (a, b)) in now.by_tc.iter().zip(before.by_tc.iter()).enumerate() {
-            if a > b {
-                self.frames_by_tc
-                    .get_or_create(&vec![("tc", tc.to_string())])
-                    .inc_by(a - b);
-            }
-        }
+        add_deltas(&self.frames_by_df, "df", &now.by_df, &before.by_df);
+        add_deltas(&self.frames_by_tc, "tc", &now.by_tc, &before.by_tc);
         for ((reason, a), (_, b)) in skip_counts(now).into_iter().zip(skip_counts(before)) {
             if a > b {
                 self.frames_skipped
@@ -225,32 +213,11 @@ impl Stats {
 
     /// The JSON view of `/api/v1/stats`.
     pub fn snapshot(&self) -> StatsSnapshot {
-        let by_df = (0..32)
-            .filter_map(|df| {
-                let v = self
-                    .frames_by_df
-                    .get_or_create(&vec![("df", df.to_string())])
-                    .get();
-                (v > 0).then(|| (df.to_string(), v))
-            })
-            .collect();
-        let by_tc = (0..32)
-            .filter_map(|tc| {
-                let v = self
-                    .frames_by_tc
-                    .get_or_create(&vec![("tc", tc.to_string())])
-                    .get();
-                (v > 0).then(|| (tc.to_string(), v))
-            })
-            .collect();
+        let numbers = || (0..32).map(|n: u32| n.to_string());
+        let by_df = read_family(&self.frames_by_df, "df", numbers());
+        let by_tc = read_family(&self.frames_by_tc, "tc", numbers());
         let read = |f: &Family<Labels, Counter>, key: &'static str, names: &[&str]| {
-            names
-                .iter()
-                .filter_map(|n| {
-                    let v = f.get_or_create(&vec![(key, n.to_string())]).get();
-                    (v > 0).then(|| (n.to_string(), v))
-                })
-                .collect::<BTreeMap<_, _>>()
+            read_family(f, key, names.iter().map(|n| n.to_string()))
         };
         StatsSnapshot {
             feed_time: self.feed_time_s(),
@@ -270,6 +237,31 @@ impl Stats {
             channel_drops: self.channel_drops.get(),
             channel_dropped_messages: self.channel_dropped_messages.get(),
             feeds: self.feeds(),
+        }
+    }
+}
+
+/// The non-zero counters of `family` among the label values `names` of `key`.
+fn read_family(
+    family: &Family<Labels, Counter>,
+    key: &'static str,
+    names: impl Iterator<Item = String>,
+) -> BTreeMap<String, u64> {
+    names
+        .filter_map(|n| {
+            let v = family.get_or_create(&vec![(key, n.clone())]).get();
+            (v > 0).then_some((n, v))
+        })
+        .collect()
+}
+
+/// Adds `now - before`, element by element, to the counters of `family` labelled `key` = index.
+fn add_deltas(family: &Family<Labels, Counter>, key: &'static str, now: &[u64], before: &[u64]) {
+    for (i, (a, b)) in now.iter().zip(before).enumerate() {
+        if a > b {
+            family
+                .get_or_create(&vec![(key, i.to_string())])
+                .inc_by(a - b);
         }
     }
 }

@@ -124,3 +124,23 @@ pub(crate) fn gather_cov<const N: usize>(
         _ => 0.0,
     })
 }
+
+/// Writes an observed vector and its covariance into the states `idx` of `x` and `p`: the
+/// inverse of [`gather`] and [`gather_cov`], for initiating a track from a report.
+pub(crate) fn scatter<const N: usize>(
+    x: &mut SVector<f64, N>,
+    p: &mut SMatrix<f64, N, N>,
+    idx: [usize; 3],
+    o: &super::Observed,
+) {
+    for (r, &i) in idx.iter().enumerate() {
+        if let (Some(xi), Some(&v)) = (x.get_mut(i), o.value.get(r)) {
+            *xi = v;
+        }
+        for (c, &j) in idx.iter().enumerate() {
+            if let (Some(pij), Some(&v)) = (p.get_mut((i, j)), o.cov.get((r, c))) {
+                *pij = v;
+            }
+        }
+    }
+}

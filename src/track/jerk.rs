@@ -26,7 +26,7 @@
 //! Plain Jerk: j̄ = 0, α = α₀, σ_j² = (4 − π)/π j_max² (the CS variance at zero mean, so the
 //! three differ only by the mean and the adaptation).
 
-use super::alt::{self, Lifecycle, Step};
+use super::alt::{self, scatter, Lifecycle, Step};
 use super::kalman::{self, Innovation};
 use super::singer;
 use super::{Estimate, FlightMode, Measurement, Observed, TrackError, Tracker};
@@ -238,21 +238,11 @@ impl JerkTracker {
     fn initiate(&mut self, t_s: f64, position: &Observed, velocity: Option<(f64, Observed)>) {
         let mut x = State10::zeros();
         let mut p = Matrix10::zeros();
-        for (r, &i) in POS.iter().enumerate() {
-            x[i] = position.value[r];
-            for (c, &j) in POS.iter().enumerate() {
-                p[(i, j)] = position.cov[(r, c)];
-            }
-        }
+        scatter(&mut x, &mut p, POS, position);
         let a2 = self.params.init_accel_sigma_mps2.powi(2);
         match velocity {
             Some((age_s, v)) => {
-                for (r, &i) in VEL.iter().enumerate() {
-                    x[i] = v.value[r];
-                    for (c, &j) in VEL.iter().enumerate() {
-                        p[(i, j)] = v.cov[(r, c)];
-                    }
-                }
+                scatter(&mut x, &mut p, VEL, &v);
                 p[(1, 1)] += a2 * age_s * age_s;
                 p[(5, 5)] += a2 * age_s * age_s;
                 p[(9, 9)] += self.params.q_v_m2ps3 * age_s;

@@ -26,7 +26,7 @@
 //! against each other at the switch and against numerical quadrature of
 //! F(τ) b bᵀ F(τ)ᵀ with F(τ) = exp(Aτ) from nalgebra's matrix exponential.
 
-use super::alt::{self, Lifecycle, Step};
+use super::alt::{self, scatter, Lifecycle, Step};
 use super::kalman;
 use super::{Estimate, FlightMode, Measurement, Observed, TrackError, Tracker};
 use nalgebra::{Matrix2, SMatrix, SVector, Vector2};
@@ -328,21 +328,11 @@ impl SingerTracker {
     fn initiate(&mut self, t_s: f64, position: &Observed, velocity: Option<(f64, Observed)>) {
         let mut x = State8::zeros();
         let mut p = Matrix8::zeros();
-        for (r, &i) in POS.iter().enumerate() {
-            x[i] = position.value[r];
-            for (c, &j) in POS.iter().enumerate() {
-                p[(i, j)] = position.cov[(r, c)];
-            }
-        }
+        scatter(&mut x, &mut p, POS, position);
         let sm2 = self.params.sigma_m_mps2.powi(2);
         match velocity {
             Some((age_s, v)) => {
-                for (r, &i) in VEL.iter().enumerate() {
-                    x[i] = v.value[r];
-                    for (c, &j) in VEL.iter().enumerate() {
-                        p[(i, j)] = v.cov[(r, c)];
-                    }
-                }
+                scatter(&mut x, &mut p, VEL, &v);
                 // The velocity drifts by up to σ_m·age horizontally, √(q_v·age) vertically.
                 p[(1, 1)] += sm2 * age_s * age_s;
                 p[(4, 4)] += sm2 * age_s * age_s;

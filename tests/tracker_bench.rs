@@ -54,11 +54,13 @@ fn paper002_hybrid_against_kalman_and_imm() {
     // Turns: within 5 % of the IMM and clearly below the Kalman filter.
     assert!(rmse(hy, "CT") <= 1.05 * rmse(imm, "CT"), "{report}");
     assert!(rmse(hy, "CT") < 0.8 * rmse(kf, "CT"), "{report}");
-    // Labels: every turn onset found, in under 3 s on average (2.2-2.3 s measured with NACv 2
-    // velocity noise at 70 m/s; the paper's RMIMM needed about 12 s), almost no false switch.
+    // Labels: every turn onset found, within 2 s on average (1.80 s measured over 100 runs
+    // with NACv 2 velocity noise at 70 m/s; the paper's RMIMM needed about 12 s), almost no
+    // false switch.
     assert_eq!(hy.missed_onsets, 0);
     let delay = hy.mean_detection_delay_s().unwrap();
-    assert!(delay < 3.0, "mean detection delay {delay} s");
+    eprintln!("{report}; mean detection delay {delay:.2} s");
+    assert!(delay <= 2.0, "mean detection delay {delay} s");
     let fs = hy.false_switches_per_100().unwrap();
     assert!(fs <= 1.0, "{fs} false switches per 100 straight updates");
     assert!(hy.label_accuracy().unwrap() > 0.95);

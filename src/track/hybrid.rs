@@ -388,8 +388,12 @@ impl HybridTracker {
         // manoeuvre (or a diverging CV filter) pays for the IMM. Terminal-area traffic climbs
         // and descends most of the time: on the LAX recording this keeps most updates cheap.
         let f = reading.flags;
-        let horizontal =
-            f.turn || f.along_track || f.speed_change || f.accel_change || f.heading_change;
+        let horizontal = f.turn
+            || f.turn_onset
+            || f.along_track
+            || f.speed_change
+            || f.accel_change
+            || f.heading_change;
         let needs_imm = (reading.manoeuvre() && horizontal) || trigger;
         if needs_imm {
             self.last_fire_t_s = t_s;

@@ -75,8 +75,8 @@ enum Command {
         scenario: Option<String>,
         #[arg(long, default_value_t = 100)]
         runs: u64,
-        /// Comma-separated tracker names.
-        #[arg(long, default_value = "hybrid,kalman-cv,imm")]
+        /// Comma-separated tracker names (`--tracker NAME` for one).
+        #[arg(long, alias = "tracker", default_value = "hybrid,kalman-cv,imm")]
         trackers: String,
         /// Seed of the first run (run k uses seed + k).
         #[arg(long, default_value_t = 1)]

@@ -84,22 +84,31 @@ pub struct Shared {
 
 /// Builds the tracker `cfg.algorithm` names (validated at config load against
 /// [`crate::config::ALGORITHMS`]).
+///
+/// The tuning comes from `cfg` (`[tracker.gate]`, `.imm`, `.divergence`, `.hybrid` and the CV
+/// noise), which [`crate::config::Config::validate`] has checked: the fall-backs to the
+/// code's defaults are never taken for a loaded configuration.
 pub fn build_tracker(cfg: &TrackerConfig) -> Box<dyn Tracker> {
     use crate::track::hybrid::{HybridParams, HybridTracker};
     use crate::track::imm::{ImmTracker, ImmTrackerParams};
+    let hybrid = |paper002_gate: bool| -> Box<dyn Tracker> {
+        Box::new(HybridTracker::new(
+            cfg.hybrid_params(paper002_gate)
+                .unwrap_or_else(|_| HybridParams::default()),
+        ))
+    };
     match cfg.algorithm.as_str() {
-        "kalman-cv" => Box::new(CvKalman::new(CvParams {
-            q_h_m2ps3: cfg.cv_q_horizontal,
-            q_v_m2ps3: cfg.cv_q_vertical,
-            max_gap_s: cfg.max_gap_s,
-            ..CvParams::default()
-        })),
-        "imm" => Box::new(ImmTracker::new(ImmTrackerParams::default())),
-        "hybrid-paper002" => Box::new(HybridTracker::new(HybridParams::paper002())),
+        "kalman-cv" => Box::new(CvKalman::new(
+            cfg.cv_params().unwrap_or_else(|_| CvParams::default()),
+        )),
+        "imm" => Box::new(ImmTracker::new(
+            cfg.imm_tracker_params()
+                .unwrap_or_else(|_| ImmTrackerParams::default()),
+        )),
+        "hybrid-paper002" => hybrid(true),
         // The other papers' trackers; "hybrid", the default, for anything else (validation
         // refuses unknown names before we get here).
-        other => crate::track::build_alternative(other)
-            .unwrap_or_else(|| Box::new(HybridTracker::new(HybridParams::default()))),
+        other => crate::track::build_alternative(other).unwrap_or_else(|| hybrid(false)),
     }
 }
 

@@ -5,8 +5,11 @@ use crate::feed::Format;
 use serde::Deserialize;
 use std::path::{Path, PathBuf};
 
+mod tracker;
+pub use tracker::{DivergenceConfig, GateConfig, HybridConfig, ImmConfig, PerMode, TrackerConfig};
+
 /// The defaults, embedded so the binary runs anywhere without the repository.
-pub const DEFAULT_TOML: &str = include_str!("../config/default.toml");
+pub const DEFAULT_TOML: &str = include_str!("../../config/default.toml");
 
 /// Why a configuration was refused.
 #[derive(Debug, thiserror::Error)]
@@ -100,25 +103,6 @@ pub struct CprConfigToml {
     pub max_speed_mps: f64,
     /// Fastest plausible surface speed, m/s.
     pub max_surface_speed_mps: f64,
-}
-
-#[derive(Clone, Debug, Deserialize, PartialEq)]
-#[serde(deny_unknown_fields)]
-pub struct TrackerConfig {
-    /// Which tracker each aircraft runs.
-    pub algorithm: String,
-    /// An aircraft silent this long (feed time) is retired, s.
-    pub retire_after_s: f64,
-    /// Capacity of each aircraft task's channel (batches); a full channel drops and counts.
-    pub channel_capacity: usize,
-    /// White-noise acceleration spectral density of the CV model, horizontal, m^2/s^3.
-    pub cv_q_horizontal: f64,
-    /// Same, vertical, m^2/s^3.
-    pub cv_q_vertical: f64,
-    /// A gap longer than this re-initialises a track, s.
-    pub max_gap_s: f64,
-    /// Horizons of the predicted positions served by `/api/v1/tracks/{icao}/prediction`, s.
-    pub prediction_horizons_s: Vec<f64>,
 }
 
 /// The tracker algorithms the daemon can run: `hybrid` (paper 002's threshold-gated CV
@@ -259,7 +243,7 @@ impl Config {
         if self.tracker.channel_capacity == 0 {
             return Err(bad("tracker.channel_capacity", "must be at least 1"));
         }
-        Ok(())
+        self.tracker.validate_tuning()
     }
 }
 

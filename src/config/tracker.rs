@@ -1,0 +1,550 @@
+//! The `[tracker]` section: which tracker runs and the tuning of the default one (paper
+//! 002's gate, the IMM's transition matrix, paper 000's divergence criterion), turned into
+//! the parameter structs of [`crate::track`]. The track module knows nothing of TOML: the
+//! daemon builds its trackers from what this module gives.
+
+use super::ConfigError;
+use crate::track::cv::CvParams;
+use crate::track::divergence::DivergenceParams;
+use crate::track::gate::{GateParams, GATE_CAPACITY};
+use crate::track::hybrid::HybridParams;
+use crate::track::imm::{ImmParams, ImmTrackerParams, N_MODES};
+use serde::Deserialize;
+
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct TrackerConfig {
+    /// Which tracker each aircraft runs.
+    pub algorithm: String,
+    /// An aircraft silent this long (feed time) is retired, s.
+    pub retire_after_s: f64,
+    /// Capacity of each aircraft task's channel (batches); a full channel drops and counts.
+    pub channel_capacity: usize,
+    /// White-noise acceleration spectral density of the CV model, horizontal, m^2/s^3.
+    pub cv_q_horizontal: f64,
+    /// Same, vertical, m^2/s^3.
+    pub cv_q_vertical: f64,
+    /// A gap longer than this re-initialises a track, s.
+    pub max_gap_s: f64,
+    /// Horizons of the predicted positions served by `/api/v1/tracks/{icao}/prediction`, s.
+    pub prediction_horizons_s: Vec<f64>,
+    /// Paper 002's manoeuvre gate.
+    pub gate: GateConfig,
+    /// The IMM (in the hybrid's manoeuvres, and alone as `imm`).
+    pub imm: ImmConfig,
+    /// Paper 000's divergence criterion and suppressor.
+    pub divergence: DivergenceConfig,
+    /// The hybrid's switching.
+    pub hybrid: HybridConfig,
+}
+
+/// `[tracker.gate]`: a preset and any of its values overridden (`None`: the preset's). A
+/// threshold of 0 disables its test.
+#[derive(Clone, Debug, Default, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct GateConfig {
+    /// `airliner` ([`GateParams::default`]) or `paper002` ([`GateParams::paper002`]).
+    pub preset: String,
+    pub window_reports: Option<usize>,
+    pub speed_change_mps: Option<f64>,
+    pub accel_change_mps2: Option<f64>,
+    pub heading_change_deg: Option<f64>,
+    pub pitch_change_deg: Option<f64>,
+    pub turn_rate_deg_s: Option<f64>,
+    pub turn_window_reports: Option<usize>,
+    pub onset_reports: Option<usize>,
+    pub onset_reference_reports: Option<usize>,
+    pub onset_sigmas: Option<f64>,
+    pub along_track_accel_mps2: Option<f64>,
+    pub trend_window_reports: Option<usize>,
+    pub vertical_rate_mps: Option<f64>,
+    pub vertical_window_reports: Option<usize>,
+    pub max_window_s: Option<f64>,
+    pub significance_sigmas: Option<f64>,
+    pub release_ratio: Option<f64>,
+    pub min_speed_mps: Option<f64>,
+    pub max_velocity_sigma_mps: Option<f64>,
+}
+
+/// One value per IMM mode, by name.
+#[derive(Clone, Copy, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct PerMode {
+    pub cv: f64,
+    pub ca: f64,
+    pub ct_left: f64,
+    pub ct_right: f64,
+    pub ch: f64,
+    pub chca: f64,
+}
+
+impl PerMode {
+    /// In [`crate::track::imm::ImmMode::ALL`] order.
+    fn array(&self) -> [f64; N_MODES] {
+        [
+            self.cv,
+            self.ca,
+            self.ct_left,
+            self.ct_right,
+            self.ch,
+            self.chca,
+        ]
+    }
+}
+
+/// The mode names of [`PerMode`], in the same order: for messages.
+const MODE_KEYS: [&str; N_MODES] = ["cv", "ca", "ct_left", "ct_right", "ch", "chca"];
+
+/// `[tracker.imm]`: the Markov chain of the modes and the CT models' rate.
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct ImmConfig {
+    /// Mean sojourn time τ of each mode, s: kept over dt with probability exp(−dt/τ).
+    pub mean_sojourn_s: PerMode,
+    /// Where a switch goes: row = from, column = to, modes in [`PerMode`] order; the
+    /// diagonal is ignored.
+    pub switch_weights: Vec<Vec<f64>>,
+    /// Mode probabilities of a new track.
+    pub initial_probabilities: PerMode,
+    /// Turn rate of the CT models when it is not adapted, deg/s.
+    pub ct_turn_rate_deg_s: f64,
+}
+
+/// `[tracker.divergence]`.
+#[derive(Clone, Copy, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct DivergenceConfig {
+    /// Storage factor r of εᵀε > r·Tr(S).
+    pub r: f64,
+    /// Whether the suppressor acts (else only detect and count).
+    pub suppress: bool,
+    /// Consecutive events before the suppressor acts.
+    pub confirm: u32,
+    /// Upper bound of the inflation factor Adapt.
+    pub max_adapt: f64,
+}
+
+/// `[tracker.hybrid]`.
+#[derive(Clone, Copy, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct HybridConfig {
+    /// The IMM stays on at least this long after the gate last fired, s.
+    pub min_manoeuvre_dwell_s: f64,
+    /// Consecutive divergence events of the CV filter that open the IMM (0: never).
+    pub divergence_trigger: u32,
+    /// Without a velocity report this long, the gate reads the filter's velocity, s.
+    pub velocity_stale_s: f64,
+    /// Run the CT models at the turn rate the gate measures.
+    pub adapt_turn_rate: bool,
+    /// Clamp of the adapted turn rate, deg/s.
+    pub turn_rate_limits_deg_s: [f64; 2],
+    /// IMM probability of the gate's label when the IMM opens.
+    pub entry_probability: f64,
+}
+
+fn bad(key: &str, problem: impl Into<String>) -> ConfigError {
+    ConfigError::Invalid {
+        key: key.to_string(),
+        problem: problem.into(),
+    }
+}
+
+/// `v` finite and within `lo..=hi` (`lo_open`: `lo` itself excluded).
+fn check(key: &str, v: f64, lo: f64, lo_open: bool, hi: f64) -> Result<f64, ConfigError> {
+    let above = if lo_open { v > lo } else { v >= lo };
+    if v.is_finite() && above && v <= hi {
+        Ok(v)
+    } else {
+        let open = if lo_open { "(" } else { "[" };
+        Err(bad(
+            key,
+            format!("must be within {open}{lo}, {hi}], got {v}"),
+        ))
+    }
+}
+
+fn count(key: &str, v: usize, lo: usize, hi: usize) -> Result<usize, ConfigError> {
+    if (lo..=hi).contains(&v) {
+        Ok(v)
+    } else {
+        Err(bad(key, format!("must be within {lo}..={hi}, got {v}")))
+    }
+}
+
+/// A threshold: ≥ 0, 0 disabling the test.
+fn threshold(key: &str, v: f64) -> Result<Option<f64>, ConfigError> {
+    let v = check(key, v, 0.0, false, f64::MAX)?;
+    Ok((v > 0.0).then_some(v))
+}
+
+impl GateConfig {
+    /// The preset with the overrides applied, checked.
+    pub fn params(&self) -> Result<GateParams, ConfigError> {
+        let mut p = match self.preset.as_str() {
+            "airliner" => GateParams::default(),
+            "paper002" => GateParams::paper002(),
+            other => {
+                return Err(bad(
+                    "tracker.gate.preset",
+                    format!("unknown {other:?}; expected airliner or paper002"),
+                ))
+            }
+        };
+        let k = |name: &str| format!("tracker.gate.{name}");
+        let cap = GATE_CAPACITY;
+        if let Some(v) = self.window_reports {
+            p.window_reports = count(&k("window_reports"), v, 2, cap)?;
+        }
+        let thresholds = [
+            (
+                &self.speed_change_mps,
+                "speed_change_mps",
+                &mut p.speed_change_mps,
+            ),
+            (
+                &self.accel_change_mps2,
+                "accel_change_mps2",
+                &mut p.accel_change_mps2,
+            ),
+            (
+                &self.heading_change_deg,
+                "heading_change_deg",
+                &mut p.heading_change_deg,
+            ),
+            (
+                &self.pitch_change_deg,
+                "pitch_change_deg",
+                &mut p.pitch_change_deg,
+            ),
+            (
+                &self.turn_rate_deg_s,
+                "turn_rate_deg_s",
+                &mut p.turn_rate_deg_s,
+            ),
+            (
+                &self.along_track_accel_mps2,
+                "along_track_accel_mps2",
+                &mut p.along_track_accel_mps2,
+            ),
+            (
+                &self.vertical_rate_mps,
+                "vertical_rate_mps",
+                &mut p.vertical_rate_mps,
+            ),
+        ];
+        for (value, name, slot) in thresholds {
+            if let Some(v) = *value {
+                *slot = threshold(&k(name), v)?;
+            }
+        }
+        if let Some(v) = self.turn_window_reports {
+            p.turn_window_reports = count(&k("turn_window_reports"), v, 3, cap)?;
+        }
+        if let Some(v) = self.onset_reports {
+            p.onset_reports = count(&k("onset_reports"), v, 0, cap - 3)?;
+        }
+        if let Some(v) = self.onset_reference_reports {
+            p.onset_reference_reports = count(&k("onset_reference_reports"), v, 3, cap)?;
+        }
+        if p.onset_reports + p.onset_reference_reports > cap {
+            return Err(bad(
+                &k("onset_reference_reports"),
+                format!("onset_reports + onset_reference_reports must be at most {cap}"),
+            ));
+        }
+        if let Some(v) = self.onset_sigmas {
+            p.onset_sigmas = check(&k("onset_sigmas"), v, 0.0, false, 100.0)?;
+        }
+        if let Some(v) = self.trend_window_reports {
+            p.trend_window_reports = count(&k("trend_window_reports"), v, 3, cap)?;
+        }
+        if let Some(v) = self.vertical_window_reports {
+            p.vertical_window_reports = count(&k("vertical_window_reports"), v, 1, cap)?;
+        }
+        if let Some(v) = self.max_window_s {
+            p.max_window_s = check(&k("max_window_s"), v, 0.0, true, 3600.0)?;
+        }
+        if let Some(v) = self.significance_sigmas {
+            p.significance_sigmas = check(&k("significance_sigmas"), v, 0.0, false, 100.0)?;
+        }
+        if let Some(v) = self.release_ratio {
+            p.release_ratio = check(&k("release_ratio"), v, 0.0, true, 1.0)?;
+        }
+        if let Some(v) = self.min_speed_mps {
+            p.min_speed_mps = check(&k("min_speed_mps"), v, 0.0, false, 1000.0)?;
+        }
+        if let Some(v) = self.max_velocity_sigma_mps {
+            p.max_velocity_sigma_mps =
+                check(&k("max_velocity_sigma_mps"), v, 0.0, true, f64::INFINITY)?;
+        }
+        Ok(p)
+    }
+}
+
+impl ImmConfig {
+    /// The IMM's parameters (models from `base`, whose CV noise the caller set), checked.
+    fn params(
+        &self,
+        base: ImmParams,
+        divergence: DivergenceParams,
+    ) -> Result<ImmParams, ConfigError> {
+        let mut p = ImmParams { divergence, ..base };
+        let sojourn = self.mean_sojourn_s.array();
+        for (v, name) in sojourn.iter().zip(MODE_KEYS) {
+            check(
+                &format!("tracker.imm.mean_sojourn_s.{name}"),
+                *v,
+                0.0,
+                true,
+                1.0e6,
+            )?;
+        }
+        p.mean_sojourn_s = sojourn;
+        let key = "tracker.imm.switch_weights";
+        if self.switch_weights.len() != N_MODES {
+            return Err(bad(
+                key,
+                format!("expected {N_MODES} rows (from cv, ca, ct_left, ct_right, ch, chca)"),
+            ));
+        }
+        for (i, (row, from)) in self.switch_weights.iter().zip(MODE_KEYS).enumerate() {
+            let row_key = format!("{key}[{i}]");
+            if row.len() != N_MODES {
+                return Err(bad(&row_key, format!("expected {N_MODES} weights")));
+            }
+            let mut off_diagonal = 0.0;
+            for (j, (w, slot)) in row.iter().zip(p.switch_weights[i].iter_mut()).enumerate() {
+                *slot = check(&format!("{row_key}[{j}]"), *w, 0.0, false, 1.0e6)?;
+                if i != j {
+                    off_diagonal += *w;
+                }
+            }
+            if off_diagonal <= 0.0 {
+                return Err(bad(
+                    &row_key,
+                    format!(
+                        "a switch from {from} must go somewhere: some weight off the diagonal > 0"
+                    ),
+                ));
+            }
+        }
+        let initial = self.initial_probabilities.array();
+        for (v, name) in initial.iter().zip(MODE_KEYS) {
+            check(
+                &format!("tracker.imm.initial_probabilities.{name}"),
+                *v,
+                0.0,
+                false,
+                1.0,
+            )?;
+        }
+        if initial.iter().sum::<f64>() <= 0.0 {
+            return Err(bad(
+                "tracker.imm.initial_probabilities",
+                "must not all be 0",
+            ));
+        }
+        p.initial_probabilities = initial;
+        let rate = check(
+            "tracker.imm.ct_turn_rate_deg_s",
+            self.ct_turn_rate_deg_s,
+            0.0,
+            true,
+            30.0,
+        )?;
+        // As models::STANDARD_RATE_RAD_S is written (to_radians() differs in the last bit).
+        p.models.ct.omega_rad_s = rate * std::f64::consts::PI / 180.0;
+        Ok(p)
+    }
+}
+
+impl DivergenceConfig {
+    fn params(&self) -> Result<DivergenceParams, ConfigError> {
+        Ok(DivergenceParams {
+            r: check("tracker.divergence.r", self.r, 0.0, true, 100.0)?,
+            suppress: self.suppress,
+            confirm: count("tracker.divergence.confirm", self.confirm as usize, 1, 1000)? as u32,
+            max_adapt: check(
+                "tracker.divergence.max_adapt",
+                self.max_adapt,
+                1.0,
+                false,
+                f64::MAX,
+            )?,
+        })
+    }
+}
+
+impl TrackerConfig {
+    /// The CV model noise and paper 000's r of the `kalman-cv` tracker.
+    pub fn cv_params(&self) -> Result<CvParams, ConfigError> {
+        Ok(CvParams {
+            q_h_m2ps3: self.cv_q_horizontal,
+            q_v_m2ps3: self.cv_q_vertical,
+            max_gap_s: self.max_gap_s,
+            divergence_r: self.divergence.params()?.r,
+            ..CvParams::default()
+        })
+    }
+
+    /// The IMM's parameters: `[tracker.imm]`, `[tracker.divergence]` and the CV noise.
+    fn imm_base(&self) -> Result<ImmParams, ConfigError> {
+        let mut base = ImmParams::default();
+        base.models.cv.q_h_m2ps3 = self.cv_q_horizontal;
+        base.models.cv.q_v_m2ps3 = self.cv_q_vertical;
+        self.imm.params(base, self.divergence.params()?)
+    }
+
+    /// The `imm` tracker.
+    pub fn imm_tracker_params(&self) -> Result<ImmTrackerParams, ConfigError> {
+        let mut p = ImmTrackerParams {
+            imm: self.imm_base()?,
+            ..ImmTrackerParams::default()
+        };
+        p.init.max_gap_s = self.max_gap_s;
+        Ok(p)
+    }
+
+    /// The `hybrid` tracker; with `paper002_gate`, paper 002's printed gate thresholds
+    /// whatever `[tracker.gate]` says (the `hybrid-paper002` tracker).
+    pub fn hybrid_params(&self, paper002_gate: bool) -> Result<HybridParams, ConfigError> {
+        let mut p = HybridParams::default();
+        p.cv.q_h_m2ps3 = self.cv_q_horizontal;
+        p.cv.q_v_m2ps3 = self.cv_q_vertical;
+        p.imm = self.imm_base()?;
+        p.divergence = self.divergence.params()?;
+        p.init.max_gap_s = self.max_gap_s;
+        p.gate = if paper002_gate {
+            GateParams::paper002()
+        } else {
+            self.gate.params()?
+        };
+        let h = &self.hybrid;
+        p.min_manoeuvre_dwell_s = check(
+            "tracker.hybrid.min_manoeuvre_dwell_s",
+            h.min_manoeuvre_dwell_s,
+            0.0,
+            false,
+            3600.0,
+        )?;
+        p.divergence_trigger = h.divergence_trigger;
+        p.velocity_stale_s = check(
+            "tracker.hybrid.velocity_stale_s",
+            h.velocity_stale_s,
+            0.0,
+            true,
+            3600.0,
+        )?;
+        p.adapt_turn_rate = h.adapt_turn_rate;
+        let [lo, hi] = h.turn_rate_limits_deg_s;
+        let key = "tracker.hybrid.turn_rate_limits_deg_s";
+        check(key, lo, 0.0, true, 30.0)?;
+        check(key, hi, lo, false, 30.0)?;
+        p.turn_rate_limits_deg_s = (lo, hi);
+        p.entry_probability = check(
+            "tracker.hybrid.entry_probability",
+            h.entry_probability,
+            0.0,
+            false,
+            1.0,
+        )?;
+        Ok(p)
+    }
+
+    /// Checks every tuning value (the daemon then builds trackers without failing).
+    pub fn validate_tuning(&self) -> Result<(), ConfigError> {
+        self.cv_params()?;
+        self.imm_tracker_params()?;
+        self.hybrid_params(false)?;
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use crate::config::Config;
+    use crate::track::cv::CvParams;
+    use crate::track::hybrid::HybridParams;
+    use crate::track::imm::ImmTrackerParams;
+
+    #[test]
+    fn default_toml_is_the_code_defaults() {
+        // config/default.toml documents the defaults: it must say what the code does.
+        let c = Config::default_config().unwrap().tracker;
+        assert_eq!(c.hybrid_params(false).unwrap(), HybridParams::default());
+        assert_eq!(c.hybrid_params(true).unwrap(), HybridParams::paper002());
+        assert_eq!(c.imm_tracker_params().unwrap(), ImmTrackerParams::default());
+        assert_eq!(c.cv_params().unwrap(), CvParams::default());
+    }
+
+    #[test]
+    fn overrides_reach_the_tracker() {
+        let c = Config::from_toml_str(
+            "[tracker.gate]\npreset = \"paper002\"\nheading_change_deg = 2.5\npitch_change_deg = 0\n\
+             [tracker.imm]\nmean_sojourn_s = { cv = 60.0 }\nct_turn_rate_deg_s = 1.5\n\
+             [tracker.divergence]\nr = 2.0\nconfirm = 1\n\
+             [tracker.hybrid]\nmin_manoeuvre_dwell_s = 8.0\n",
+        )
+        .unwrap()
+        .tracker;
+        let p = c.hybrid_params(false).unwrap();
+        assert_eq!(p.gate.heading_change_deg, Some(2.5));
+        assert_eq!(p.gate.pitch_change_deg, None);
+        assert_eq!(p.gate.speed_change_mps, Some(10.0));
+        assert_eq!(p.gate.turn_rate_deg_s, None);
+        assert_eq!(p.imm.mean_sojourn_s[0], 60.0);
+        assert_eq!(p.imm.mean_sojourn_s[1], 20.0);
+        assert!((p.imm.models.ct.omega_rad_s - 1.5f64.to_radians()).abs() < 1e-15);
+        assert_eq!((p.divergence.r, p.divergence.confirm), (2.0, 1));
+        assert_eq!(p.imm.divergence, p.divergence);
+        assert_eq!(p.min_manoeuvre_dwell_s, 8.0);
+        assert_eq!(c.cv_params().unwrap().divergence_r, 2.0);
+        // The transition matrix built from them: CV kept over 1 s with exp(-1/60).
+        let imm = crate::track::imm::Imm::new(p.imm);
+        assert!((imm.transition(1.0)[0][0] - (-1.0f64 / 60.0).exp()).abs() < 1e-15);
+    }
+
+    #[test]
+    fn bad_tuning_names_its_key() {
+        let cases = [
+            ("[tracker.gate]\npreset = \"fast\"\n", "tracker.gate.preset"),
+            ("[tracker.gate]\nturn_rate_deg_s = -1.0\n", "tracker.gate.turn_rate_deg_s"),
+            ("[tracker.gate]\nturn_window_reports = 99\n", "tracker.gate.turn_window_reports"),
+            ("[tracker.gate]\nrelease_ratio = 0.0\n", "tracker.gate.release_ratio"),
+            ("[tracker.gate]\nbogus = 1.0\n", "bogus"),
+            (
+                "[tracker.imm]\nmean_sojourn_s = { ch = 0.0 }\n",
+                "tracker.imm.mean_sojourn_s.ch",
+            ),
+            (
+                "[tracker.imm]\nswitch_weights = [[0.0, 1.0]]\n",
+                "tracker.imm.switch_weights",
+            ),
+            (
+                "[tracker.imm]\nswitch_weights = [[1,0,0,0,0,0],[4,0,1,1,1,1],[4,1,0,1,1,1],[4,1,1,0,1,1],[4,1,1,1,0,1],[4,1,1,1,1,0]]\n",
+                "tracker.imm.switch_weights[0]",
+            ),
+            (
+                "[tracker.imm]\nswitch_weights = [[0,1,1,1,1,1],[4,0,1,1,1,1],[4,1,0,-1,1,1],[4,1,1,0,1,1],[4,1,1,1,0,1],[4,1,1,1,1,0]]\n",
+                "tracker.imm.switch_weights[2][3]",
+            ),
+            ("[tracker.divergence]\nconfirm = 0\n", "tracker.divergence.confirm"),
+            ("[tracker.divergence]\nr = nan\n", "tracker.divergence.r"),
+            (
+                "[tracker.hybrid]\nturn_rate_limits_deg_s = [3.0, 1.0]\n",
+                "tracker.hybrid.turn_rate_limits_deg_s",
+            ),
+            (
+                "[tracker.hybrid]\nentry_probability = 1.5\n",
+                "tracker.hybrid.entry_probability",
+            ),
+        ];
+        for (text, key) in cases {
+            let err = Config::from_toml_str(text).unwrap_err().to_string();
+            assert!(
+                err.contains(key),
+                "{text:?} gave {err:?}, expected it to name {key}"
+            );
+        }
+    }
+}

@@ -96,7 +96,8 @@ pub struct GateParams {
     pub vertical_rate_mps: Option<f64>,
     /// Reports in the vertical-rate window.
     pub vertical_window_reports: usize,
-    /// Reports in the along-track acceleration window (and the smoothed turn rate's).
+    /// Reports in the along-track acceleration window (and the most a turn's rate is fitted
+    /// over, [`Gate::turn_rate_since_start_rad_s`]).
     pub trend_window_reports: usize,
     /// Reports older than this before the newest leave every window, s.
     pub max_window_s: f64,
@@ -390,6 +391,9 @@ pub struct Gate {
     head: usize,
     len: usize,
     reading: GateReading,
+    /// Feed time the current turn began (the last straight report before it), while a turn
+    /// test holds.
+    turn_start_s: Option<f64>,
 }
 
 impl Gate {
@@ -401,6 +405,7 @@ impl Gate {
             head: 0,
             len: 0,
             reading: GateReading::default(),
+            turn_start_s: None,
         }
     }
 
@@ -414,13 +419,33 @@ impl Gate {
         self.len = 0;
         self.head = 0;
         self.reading = GateReading::default();
+        self.turn_start_s = None;
     }
 
-    /// The turn rate over the (longer) trend window, rad/s: a steadier estimate of the rate
-    /// of an established turn (for the CT models and for prediction). Computed on demand.
-    pub fn smoothed_turn_rate_rad_s(&self) -> Option<f64> {
-        self.heading_slope(self.params.trend_window_reports)
-            .map(|(slope, _)| slope)
+    /// The rate of the current turn, rad/s (+ = left): the least-squares slope of the
+    /// heading over the reports since the turn began (at most the trend window's), the rate
+    /// the CT models and the prediction should use. Over a fixed long window the straight
+    /// reports before the turn would dilute it for as long as the window (24 reports: 12 s
+    /// at 2 Hz, i.e. most of a 90° turn at 3°/s); over the short one it is noisy. `None`
+    /// while no turn test holds. Computed on demand.
+    pub fn turn_rate_since_start_rad_s(&self) -> Option<f64> {
+        let start = self.turn_start_s?;
+        let mut buf = [(0.0, 0.0, 0.0); GATE_CAPACITY];
+        let n = self
+            .headings(self.params.trend_window_reports, &mut buf)
+            .unwrap_or(0);
+        let since = buf.get(..n).unwrap_or(&[]).iter().filter(|s| s.0 >= start);
+        if since.clone().count() >= 3 {
+            if let Some((slope, _)) = ls_slope(since.copied()) {
+                return Some(slope);
+            }
+        }
+        let r = &self.reading;
+        if r.flags.turn {
+            r.turn_rate_rad_s
+        } else {
+            r.onset_turn_rate_rad_s
+        }
     }
 
     /// The last evaluation.
@@ -544,10 +569,11 @@ impl Gate {
     }
 
     /// The turn onset test: the strongest (in σ) of the hinge fits over the newest
-    /// m = 1..=`onset_reports` reports, as (rate since the onset, its σ). Only measured
+    /// m = 1..=`onset_reports` reports, as (rate since the onset, its σ, the time of the last
+    /// straight report). Only measured
     /// velocities, and only a reference that is not itself turning (its own slope under λ):
     /// the end of a turn must not read as the onset of another.
-    fn turn_onset(&self, lambda_rad_s: f64) -> Option<(f64, f64)> {
+    fn turn_onset(&self, lambda_rad_s: f64) -> Option<(f64, f64, f64)> {
         let p = &self.params;
         let total = p.onset_reference_reports + p.onset_reports;
         if p.onset_reports == 0 || !self.window(total).all(|s| s.measured) {
@@ -556,7 +582,7 @@ impl Gate {
         let mut buf = [(0.0, 0.0, 0.0); GATE_CAPACITY];
         let n = self.headings(total, &mut buf)?;
         let all = buf.get(..n)?;
-        let mut best: Option<(f64, f64)> = None;
+        let mut best: Option<(f64, f64, f64)> = None;
         for m in 1..=p.onset_reports {
             let Some(split) = n.checked_sub(m).filter(|&s| s >= 3) else {
                 break;
@@ -569,8 +595,8 @@ impl Gate {
             let t_ref = reference.last()?.0;
             let hinge = all.iter().map(|&(t, y, v)| ((t - t_ref).max(0.0), y, v));
             if let Some((b, sigma)) = ls_slope(hinge) {
-                if best.is_none_or(|(b0, s0)| b.abs() * s0 > b0.abs() * sigma) {
-                    best = Some((b, sigma));
+                if best.is_none_or(|(b0, s0, _)| b.abs() * s0 > b0.abs() * sigma) {
+                    best = Some((b, sigma, t_ref));
                 }
             }
         }
@@ -589,13 +615,26 @@ impl Gate {
             r.turn_rate_rad_s = Some(slope);
             r.flags.turn = fires(slope, sigma, lambda_turn, old.turn || old.turn_onset, &p);
         }
+        let mut onset_s = None;
         if let (false, Some(lambda)) = (r.flags.turn, lambda_turn) {
-            if let Some((rate, sigma)) = self.turn_onset(lambda) {
+            if let Some((rate, sigma, t_ref)) = self.turn_onset(lambda) {
                 let a = rate.abs();
                 r.flags.turn_onset = a > lambda && a > p.onset_sigmas * sigma;
                 r.onset_turn_rate_rad_s = Some(rate);
+                onset_s = Some(t_ref);
             }
         }
+        // When the current turn began: the onset's reference report, or for a turn the
+        // turn-rate test found first, the oldest report of its window.
+        self.turn_start_s = if !(r.flags.turn || r.flags.turn_onset) {
+            None
+        } else if let Some(t0) = self.turn_start_s {
+            Some(t0)
+        } else if r.flags.turn_onset {
+            onset_s
+        } else {
+            self.window(p.turn_window_reports).next().map(|s| s.t_s)
+        };
 
         // Along-track acceleration over the trend window, vertical rate over its own.
         let trend = self

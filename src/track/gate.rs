@@ -194,6 +194,10 @@ struct Sample {
     speed_mps: f64,
     /// Heading as a math angle atan2(vn, ve), rad (counter-clockwise from east).
     angle_rad: f64,
+    /// The same, unwrapped from the previous sample's (continuous through ±π), rad.
+    heading_rad: f64,
+    /// Variance of the heading, rad²: the horizontal component variance over speed².
+    heading_var: f64,
     /// Vertical rate, m/s (NaN-free; meaningful only when `var_u` is finite).
     vu_mps: f64,
     /// Variance of one horizontal component, (m/s)².
@@ -383,12 +387,16 @@ fn ls_slope(points: impl Iterator<Item = (f64, f64, f64)> + Clone) -> Option<(f6
 }
 
 /// The gate: a window of the last velocities and the state of its hysteresis.
+///
+/// The samples live in a ring buffer written twice (at i and i + capacity), so the newest n
+/// are always one contiguous slice: every test is a plain loop over a slice, with no
+/// modulo and no copy (the gate runs on every report of every aircraft).
 #[derive(Clone, Debug, PartialEq)]
 pub struct Gate {
     params: GateParams,
-    samples: [Sample; GATE_CAPACITY],
-    /// Index of the oldest sample.
-    head: usize,
+    samples: [Sample; 2 * GATE_CAPACITY],
+    /// Ring index (0..capacity) the next sample goes to.
+    next: usize,
     len: usize,
     reading: GateReading,
     /// Feed time the current turn began (the last straight report before it), while a turn
@@ -401,8 +409,8 @@ impl Gate {
     pub fn new(params: GateParams) -> Self {
         Self {
             params,
-            samples: [Sample::default(); GATE_CAPACITY],
-            head: 0,
+            samples: [Sample::default(); 2 * GATE_CAPACITY],
+            next: 0,
             len: 0,
             reading: GateReading::default(),
             turn_start_s: None,
@@ -417,7 +425,7 @@ impl Gate {
     /// Forgets every sample (a new track).
     pub fn clear(&mut self) {
         self.len = 0;
-        self.head = 0;
+        self.next = 0;
         self.reading = GateReading::default();
         self.turn_start_s = None;
     }
@@ -430,13 +438,10 @@ impl Gate {
     /// while no turn test holds. Computed on demand.
     pub fn turn_rate_since_start_rad_s(&self) -> Option<f64> {
         let start = self.turn_start_s?;
-        let mut buf = [(0.0, 0.0, 0.0); GATE_CAPACITY];
-        let n = self
-            .headings(self.params.trend_window_reports, &mut buf)
-            .unwrap_or(0);
-        let since = buf.get(..n).unwrap_or(&[]).iter().filter(|s| s.0 >= start);
-        if since.clone().count() >= 3 {
-            if let Some((slope, _)) = ls_slope(since.copied()) {
+        let window = self.recent(self.params.trend_window_reports);
+        let first = window.partition_point(|s| s.t_s < start);
+        if let Some(since) = window.get(first..).filter(|w| w.len() >= 3) {
+            if let Some((slope, _)) = self.heading_slope_of(since) {
                 return Some(slope);
             }
         }
@@ -463,27 +468,24 @@ impl Gate {
         self.len == 0
     }
 
-    /// The i-th newest sample (0 = newest).
-    fn newest(&self, i: usize) -> Option<&Sample> {
-        if i >= self.len {
-            return None;
-        }
-        self.samples
-            .get((self.head + self.len - 1 - i) % GATE_CAPACITY)
+    /// The newest sample.
+    fn newest(&self) -> Option<&Sample> {
+        self.recent(1).last()
     }
 
     /// The newest `n` samples within `max_window_s` of the newest, oldest first.
-    fn window(&self, n: usize) -> impl Iterator<Item = &Sample> + Clone {
-        let newest_t = self.newest(0).map_or(f64::NEG_INFINITY, |s| s.t_s);
-        let max_age = self.params.max_window_s;
-        let mut count = 0;
-        while count < n.min(self.len) {
-            match self.newest(count) {
-                Some(s) if newest_t - s.t_s <= max_age => count += 1,
-                _ => break,
-            }
-        }
-        (0..count).rev().filter_map(move |i| self.newest(i))
+    fn recent(&self, n: usize) -> &[Sample] {
+        let end = self.next + GATE_CAPACITY;
+        let held = self
+            .samples
+            .get(end - n.min(self.len)..end)
+            .unwrap_or(&[]);
+        let Some(newest) = held.last() else {
+            return held;
+        };
+        let oldest_t = newest.t_s - self.params.max_window_s;
+        let first = held.partition_point(|s| s.t_s < oldest_t);
+        held.get(first..).unwrap_or(&[])
     }
 
     /// Adds a velocity at `t_s` and re-evaluates every test. `measured`: the velocity comes
@@ -492,7 +494,7 @@ impl Gate {
     pub fn push(&mut self, t_s: f64, v: &Observed, measured: bool) -> &GateReading {
         if !t_s.is_finite()
             || !v.value.iter().chain(v.cov.iter()).all(|x| x.is_finite())
-            || self.newest(0).is_some_and(|s| t_s < s.t_s)
+            || self.newest().is_some_and(|s| t_s < s.t_s)
         {
             return &self.reading;
         }
@@ -513,91 +515,113 @@ impl Gate {
         } else {
             f64::INFINITY
         };
+        let speed_mps = ve.hypot(vn);
+        let angle_rad = vn.atan2(ve);
+        // The heading unwrapped from the previous sample's: slopes and fits read differences,
+        // which a common offset leaves alone.
+        let heading_rad = self
+            .newest()
+            .map_or(angle_rad, |prev| prev.heading_rad + wrap_pi(angle_rad - prev.angle_rad));
         let sample = Sample {
             t_s,
-            speed_mps: ve.hypot(vn),
-            angle_rad: vn.atan2(ve),
+            speed_mps,
+            angle_rad,
+            heading_rad,
+            heading_var: var_h / (speed_mps * speed_mps),
             vu_mps: vu,
             var_h,
             var_u,
             measured,
         };
-        if self.len == GATE_CAPACITY {
-            self.samples[self.head] = sample;
-            self.head = (self.head + 1) % GATE_CAPACITY;
-        } else {
-            let slot = (self.head + self.len) % GATE_CAPACITY;
-            self.samples[slot] = sample;
-            self.len += 1;
+        for slot in [self.next, self.next + GATE_CAPACITY] {
+            if let Some(s) = self.samples.get_mut(slot) {
+                *s = sample;
+            }
         }
+        self.next = (self.next + 1) % GATE_CAPACITY;
+        self.len = (self.len + 1).min(GATE_CAPACITY);
         self.evaluate();
         &self.reading
     }
 
-    /// The newest `n` samples (within `max_window_s`) as (t, unwrapped heading, heading
-    /// variance), oldest first, into `buf`; their count. `None` when any is slower than
-    /// `min_speed_mps` (the heading is then noise).
-    fn headings(&self, n: usize, buf: &mut [(f64, f64, f64); GATE_CAPACITY]) -> Option<usize> {
-        let window = self.window(n);
-        if !window
-            .clone()
-            .all(|s| s.speed_mps >= self.params.min_speed_mps)
-        {
+    /// Least-squares slope of the unwrapped heading over `window` and its σ; `None` when
+    /// fewer than 3 samples or when any is slower than `min_speed_mps` (its heading is then
+    /// noise).
+    fn heading_slope_of(&self, window: &[Sample]) -> Option<(f64, f64)> {
+        if window.iter().any(|s| s.speed_mps < self.params.min_speed_mps) {
             return None;
         }
-        // The unwrapping carries state from sample to sample.
-        let mut count = 0;
-        let mut unwrapped = 0.0;
-        let mut previous: Option<f64> = None;
-        for (slot, s) in buf.iter_mut().zip(window) {
-            if let Some(prev) = previous {
-                unwrapped += wrap_pi(s.angle_rad - prev);
-            }
-            previous = Some(s.angle_rad);
-            *slot = (s.t_s, unwrapped, s.var_h / (s.speed_mps * s.speed_mps));
-            count += 1;
-        }
-        Some(count)
-    }
-
-    /// Least-squares slope of the unwrapped heading over the newest `n` samples and its σ;
-    /// `None` when fewer than 3 or when any is slower than `min_speed_mps`.
-    fn heading_slope(&self, n: usize) -> Option<(f64, f64)> {
-        let mut buf = [(0.0, 0.0, 0.0); GATE_CAPACITY];
-        let count = self.headings(n, &mut buf)?;
-        buf.get(..count).and_then(|b| ls_slope(b.iter().copied()))
+        ls_slope(window.iter().map(|s| (s.t_s, s.heading_rad, s.heading_var)))
     }
 
     /// The turn onset test: the strongest (in σ) of the hinge fits over the newest
     /// m = 1..=`onset_reports` reports, as (rate since the onset, its σ, the time of the last
-    /// straight report). Only measured
-    /// velocities, and only a reference that is not itself turning (its own slope under λ):
-    /// the end of a turn must not read as the onset of another.
+    /// straight report). Only measured velocities, and only a reference that is not itself
+    /// turning (its own slope under λ): the end of a turn must not read as the onset of
+    /// another.
+    ///
+    /// One pass of prefix sums serves every split: times are taken from the newest report
+    /// and headings from the oldest, so the one-pass formulas Σxy − Σx Σy / n work on numbers
+    /// of a few seconds and radians and do not cancel.
     fn turn_onset(&self, lambda_rad_s: f64) -> Option<(f64, f64, f64)> {
         let p = &self.params;
-        let total = p.onset_reference_reports + p.onset_reports;
-        if p.onset_reports == 0 || !self.window(total).all(|s| s.measured) {
+        let all = self.recent(p.onset_reference_reports + p.onset_reports);
+        if p.onset_reports == 0
+            || all
+                .iter()
+                .any(|s| !s.measured || s.speed_mps < p.min_speed_mps)
+        {
             return None;
         }
-        let mut buf = [(0.0, 0.0, 0.0); GATE_CAPACITY];
-        let n = self.headings(total, &mut buf)?;
-        let all = buf.get(..n)?;
+        let (t0, y0) = (all.last()?.t_s, all.first()?.heading_rad);
+        // prefix[k] = sums over all[..k]: (Σt, Σt², Σy, Σty, Σvar).
+        let mut prefix = [[0.0; 5]; GATE_CAPACITY + 1];
+        for (k, s) in all.iter().enumerate() {
+            let (t, y) = (s.t_s - t0, s.heading_rad - y0);
+            let prev = *prefix.get(k)?;
+            *prefix.get_mut(k + 1)? = [
+                prev[0] + t,
+                prev[1] + t * t,
+                prev[2] + y,
+                prev[3] + t * y,
+                prev[4] + s.heading_var,
+            ];
+        }
+        let n = all.len();
+        let [_, _, sum_y, _, sum_var] = *prefix.get(n)?;
         let mut best: Option<(f64, f64, f64)> = None;
         for m in 1..=p.onset_reports {
             let Some(split) = n.checked_sub(m).filter(|&s| s >= 3) else {
                 break;
             };
-            let (reference, _) = all.split_at(split);
-            let (c, _) = ls_slope(reference.iter().copied())?;
-            if c.abs() >= lambda_rad_s {
+            // The reference's own slope.
+            let [st, stt, sy, sty, _] = *prefix.get(split)?;
+            let k = split as f64;
+            let sxx = stt - st * st / k;
+            if sxx <= 0.0 || ((sty - st * sy / k) / sxx).abs() >= lambda_rad_s {
                 continue;
             }
-            let t_ref = reference.last()?.0;
-            let hinge = all.iter().map(|&(t, y, v)| ((t - t_ref).max(0.0), y, v));
-            if let Some((b, sigma)) = ls_slope(hinge) {
-                if best.is_none_or(|(b0, s0, _)| b.abs() * s0 > b0.abs() * sigma) {
-                    best = Some((b, sigma, t_ref));
-                }
+            let reference_end = all.get(split - 1)?;
+            // The hinge h = max(0, t − t_ref): zero on the reference, so only the newest m
+            // reports add to Σh, Σh², Σhy.
+            let t_ref = reference_end.t_s;
+            let (mut sh, mut shh, mut shy) = (0.0, 0.0, 0.0);
+            for s in all.get(split..)? {
+                let h = s.t_s - t_ref;
+                let y = s.heading_rad - y0;
+                sh += h;
+                shh += h * h;
+                shy += h * y;
+            }
+            let nf = n as f64;
+            let hxx = shh - sh * sh / nf;
+            if hxx <= 0.0 {
+                continue;
+            }
+            let b = (shy - sh * sum_y / nf) / hxx;
+            let sigma = (sum_var / nf / hxx).sqrt();
+            if best.is_none_or(|(b0, s0, _)| b.abs() * s0 > b0.abs() * sigma) {
+                best = Some((b, sigma, t_ref));
             }
         }
         best
@@ -611,7 +635,8 @@ impl Gate {
         // Turn rate: slope of the unwrapped heading (a turn that began with the onset test
         // is held by this one at its release thresholds).
         let lambda_turn = p.turn_rate_deg_s.map(f64::to_radians);
-        if let Some((slope, sigma)) = self.heading_slope(p.turn_window_reports) {
+        let turn_window = self.recent(p.turn_window_reports);
+        if let Some((slope, sigma)) = self.heading_slope_of(turn_window) {
             r.turn_rate_rad_s = Some(slope);
             r.flags.turn = fires(slope, sigma, lambda_turn, old.turn || old.turn_onset, &p);
         }
@@ -633,12 +658,13 @@ impl Gate {
         } else if r.flags.turn_onset {
             onset_s
         } else {
-            self.window(p.turn_window_reports).next().map(|s| s.t_s)
+            turn_window.first().map(|s| s.t_s)
         };
 
         // Along-track acceleration over the trend window, vertical rate over its own.
         let trend = self
-            .window(p.trend_window_reports)
+            .recent(p.trend_window_reports)
+            .iter()
             .filter(|s| s.measured)
             .map(|s| (s.t_s, s.speed_mps, s.var_h));
         if let Some((slope, sigma)) = ls_slope(trend) {
@@ -648,7 +674,8 @@ impl Gate {
         }
         let (mut n, mut sum, mut var) = (0.0, 0.0, 0.0);
         for s in self
-            .window(p.vertical_window_reports)
+            .recent(p.vertical_window_reports)
+            .iter()
             .filter(|s| s.measured && s.var_u.is_finite())
         {
             n += 1.0;
@@ -679,53 +706,46 @@ impl Gate {
     /// The paper's Δv, Δa, Δφ, Δβ over the last N reports into `r`.
     fn paper_changes(&self, r: &mut GateReading, old: GateFlags) {
         let p = &self.params;
-        let mut first: Option<&Sample> = None;
-        let mut last: Option<&Sample> = None;
-        let mut first_accel: Option<f64> = None;
-        let mut last_accel: Option<f64> = None;
-        let mut heading_change = 0.0;
-        for s in self.window(p.window_reports) {
-            if let Some(prev) = last {
-                heading_change += wrap_pi(s.angle_rad - prev.angle_rad);
-                let dt = s.t_s - prev.t_s;
-                if dt > 0.0 {
-                    let a = (s.speed_mps - prev.speed_mps) / dt;
-                    first_accel.get_or_insert(a);
-                    last_accel = Some(a);
-                }
-            }
-            first.get_or_insert(s);
-            last = Some(s);
+        let window = self.recent(p.window_reports);
+        let (Some(f), Some(l)) = (window.first(), window.last()) else {
+            return;
+        };
+        r.pitch_rad = l.var_u.is_finite().then(|| l.vu_mps.atan2(l.speed_mps));
+        if window.len() < 2 {
+            return;
         }
-        if let (Some(f), Some(l)) = (first, last) {
-            r.pitch_rad = l.var_u.is_finite().then(|| l.vu_mps.atan2(l.speed_mps));
-            if !std::ptr::eq(f, l) {
-                let dv = l.speed_mps - f.speed_mps;
-                r.speed_change_mps = Some(dv);
-                r.flags.speed_change = fires(dv, 0.0, p.speed_change_mps, old.speed_change, p);
-                if f.speed_mps >= p.min_speed_mps && l.speed_mps >= p.min_speed_mps {
-                    r.heading_change_rad = Some(heading_change);
-                    r.flags.heading_change = fires(
-                        heading_change,
-                        0.0,
-                        p.heading_change_deg.map(f64::to_radians),
-                        old.heading_change,
-                        p,
-                    );
-                }
-                if f.var_u.is_finite() && l.var_u.is_finite() {
-                    let db = l.vu_mps.atan2(l.speed_mps) - f.vu_mps.atan2(f.speed_mps);
-                    r.pitch_change_rad = Some(db);
-                    r.flags.pitch_change = fires(
-                        db,
-                        0.0,
-                        p.pitch_change_deg.map(f64::to_radians),
-                        old.pitch_change,
-                        p,
-                    );
-                }
-            }
+        let dv = l.speed_mps - f.speed_mps;
+        r.speed_change_mps = Some(dv);
+        r.flags.speed_change = fires(dv, 0.0, p.speed_change_mps, old.speed_change, p);
+        if f.speed_mps >= p.min_speed_mps && l.speed_mps >= p.min_speed_mps {
+            let heading_change = l.heading_rad - f.heading_rad;
+            r.heading_change_rad = Some(heading_change);
+            r.flags.heading_change = fires(
+                heading_change,
+                0.0,
+                p.heading_change_deg.map(f64::to_radians),
+                old.heading_change,
+                p,
+            );
         }
+        if f.var_u.is_finite() && l.var_u.is_finite() {
+            let db = l.vu_mps.atan2(l.speed_mps) - f.vu_mps.atan2(f.speed_mps);
+            r.pitch_change_rad = Some(db);
+            r.flags.pitch_change = fires(
+                db,
+                0.0,
+                p.pitch_change_deg.map(f64::to_radians),
+                old.pitch_change,
+                p,
+            );
+        }
+        // Along-track accelerations: differences of consecutive ground speeds.
+        let accel = |w: &[Sample]| match w {
+            [a, b] if b.t_s > a.t_s => Some((b.speed_mps - a.speed_mps) / (b.t_s - a.t_s)),
+            _ => None,
+        };
+        let first_accel = window.windows(2).find_map(accel);
+        let last_accel = window.windows(2).rev().find_map(accel);
         if let (Some(a0), Some(a1)) = (first_accel, last_accel) {
             let da = a1 - a0;
             r.accel_change_mps2 = Some(da);

@@ -272,20 +272,6 @@ impl HybridTracker {
         }
     }
 
-    /// The current filter's position/velocity estimate and its covariance (6-state).
-    fn state6(&self) -> (State6, Matrix6) {
-        match &self.branch {
-            Branch::Cv { x, p } => (*x, *p),
-            Branch::Imm { .. } => {
-                let (x, p) = self.imm.combined();
-                (
-                    x.fixed_rows::<6>(0).into_owned(),
-                    p.fixed_view::<6, 6>(0, 0).into_owned(),
-                )
-            }
-        }
-    }
-
     /// Runs the current filter on the report.
     fn filter_step(&mut self, dt_s: f64, obs: &Observation) -> Result<(), TrackError> {
         match &mut self.branch {
@@ -332,7 +318,10 @@ impl HybridTracker {
     /// K S Kᵀ = P(k|k−1) − P(k|k). That, not P(k|k), is the per-sample variance the gate's
     /// least-squares significance test assumes, so it is what a derived sample carries.
     fn feed_gate(&mut self, m: &Measurement) {
-        let (x, _) = self.state6();
+        let x = match &self.branch {
+            Branch::Cv { x, .. } => *x,
+            Branch::Imm { .. } => self.imm.combined_state().fixed_rows::<6>(0).into_owned(),
+        };
         let pos = x.fixed_rows::<3>(0).into_owned();
         if let Some(v) = &m.velocity {
             self.gate.push(m.t_s, &to_local_axes(&pos, v), true);

@@ -450,12 +450,7 @@ impl Imm {
 
     /// The combined estimate x̂ = Σ μⱼ x̂ⱼ and P = Σ μⱼ [Pⱼ + (x̂ⱼ − x̂)(x̂ⱼ − x̂)ᵀ].
     pub fn combined(&self) -> (State9, Matrix9) {
-        let mut x = State9::zeros();
-        for (xj, mu) in self.x.iter().zip(self.mu) {
-            if mu > 0.0 {
-                x += xj * mu;
-            }
-        }
+        let x = self.combined_state();
         let mut p = Matrix9::zeros();
         for ((xj, pj), mu) in self.x.iter().zip(self.p.iter()).zip(self.mu) {
             if mu > 0.0 {
@@ -464,6 +459,17 @@ impl Imm {
             }
         }
         (x, kalman::symmetrise(&p))
+    }
+
+    /// The combined estimate x̂ = Σ μⱼ x̂ⱼ alone (no covariance: a tenth of the work).
+    pub fn combined_state(&self) -> State9 {
+        let mut x = State9::zeros();
+        for (xj, mu) in self.x.iter().zip(self.mu) {
+            if mu > 0.0 {
+                x += xj * mu;
+            }
+        }
+        x
     }
 }
 

@@ -476,10 +476,7 @@ impl Gate {
     /// The newest `n` samples within `max_window_s` of the newest, oldest first.
     fn recent(&self, n: usize) -> &[Sample] {
         let end = self.next + GATE_CAPACITY;
-        let held = self
-            .samples
-            .get(end - n.min(self.len)..end)
-            .unwrap_or(&[]);
+        let held = self.samples.get(end - n.min(self.len)..end).unwrap_or(&[]);
         let Some(newest) = held.last() else {
             return held;
         };
@@ -519,9 +516,9 @@ impl Gate {
         let angle_rad = vn.atan2(ve);
         // The heading unwrapped from the previous sample's: slopes and fits read differences,
         // which a common offset leaves alone.
-        let heading_rad = self
-            .newest()
-            .map_or(angle_rad, |prev| prev.heading_rad + wrap_pi(angle_rad - prev.angle_rad));
+        let heading_rad = self.newest().map_or(angle_rad, |prev| {
+            prev.heading_rad + wrap_pi(angle_rad - prev.angle_rad)
+        });
         let sample = Sample {
             t_s,
             speed_mps,
@@ -548,7 +545,10 @@ impl Gate {
     /// fewer than 3 samples or when any is slower than `min_speed_mps` (its heading is then
     /// noise).
     fn heading_slope_of(&self, window: &[Sample]) -> Option<(f64, f64)> {
-        if window.iter().any(|s| s.speed_mps < self.params.min_speed_mps) {
+        if window
+            .iter()
+            .any(|s| s.speed_mps < self.params.min_speed_mps)
+        {
             return None;
         }
         ls_slope(window.iter().map(|s| (s.t_s, s.heading_rad, s.heading_var)))

@@ -134,6 +134,8 @@ pub struct HybridConfig {
     pub divergence_trigger: u32,
     /// Without a velocity report this long, the gate reads the filter's velocity, s.
     pub velocity_stale_s: f64,
+    /// Run the IMM whenever velocity reports are stale.
+    pub imm_without_velocity: bool,
     /// Run the CT models at the turn rate the gate measures.
     pub adapt_turn_rate: bool,
     /// Clamp of the adapted turn rate, deg/s.
@@ -435,6 +437,7 @@ impl TrackerConfig {
             true,
             3600.0,
         )?;
+        p.imm_without_velocity = h.imm_without_velocity;
         p.adapt_turn_rate = h.adapt_turn_rate;
         let [lo, hi] = h.turn_rate_limits_deg_s;
         let key = "tracker.hybrid.turn_rate_limits_deg_s";

@@ -85,7 +85,7 @@ impl SimSummary {
 }
 
 /// The built-in scenarios: name and TOML text (fixtures/scenarios/NAME.toml, embedded).
-pub const BUILTIN: [(&str, &str); 6] = [
+pub const BUILTIN: [(&str, &str); 7] = [
     (
         "paper000",
         include_str!("../../fixtures/scenarios/paper000.toml"),
@@ -97,6 +97,10 @@ pub const BUILTIN: [(&str, &str); 6] = [
     (
         "paper002",
         include_str!("../../fixtures/scenarios/paper002.toml"),
+    ),
+    (
+        "paper002-positions",
+        include_str!("../../fixtures/scenarios/paper002-positions.toml"),
     ),
     (
         "paper003",
@@ -172,7 +176,8 @@ mod tests {
         assert_eq!(
             e,
             "no scenario file \"nope\" and no built-in scenario of that name \
-             (built-in: paper000, paper001, paper002, paper003, departure, approach)"
+             (built-in: paper000, paper001, paper002, paper002-positions, paper003, departure, \
+             approach)"
         );
     }
 

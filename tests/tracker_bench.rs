@@ -48,9 +48,11 @@ fn paper002_hybrid_against_kalman_and_imm() {
         rmse(kf, "CT"),
         rmse(imm, "CT")
     );
-    // Straight legs: at most the CV Kalman filter's error (the IMM is within 2 % of both).
+    // Straight legs: at most the CV Kalman filter's error, and the IMM's: with a velocity
+    // measured every second both sit on the same floor (10.322 m each over 100 runs; the
+    // Kalman filter's 10.595 m is its lag after the turns).
     assert!(rmse(hy, "CV") <= rmse(kf, "CV"), "{report}");
-    assert!(rmse(hy, "CV") <= 1.02 * rmse(imm, "CV"), "{report}");
+    assert!(rmse(hy, "CV") <= 1.002 * rmse(imm, "CV"), "{report}");
     // Turns: within 5 % of the IMM and clearly below the Kalman filter.
     assert!(rmse(hy, "CT") <= 1.05 * rmse(imm, "CT"), "{report}");
     assert!(rmse(hy, "CT") < 0.8 * rmse(kf, "CT"), "{report}");
@@ -134,6 +136,10 @@ fn real_flight_labels_follow_the_vertical_profile() {
     }
     let climb_frac = climb_ch as f64 / climb as f64;
     let level_frac = level_cv as f64 / level as f64;
+    eprintln!(
+        "AFR34ZG: CH/CHCA on {climb_ch} of {climb} estimates in climbs and descents > 1000 \
+         ft/min, CV on {level_cv} of {level} in level cruise above 9000 m"
+    );
     assert!(
         climb > 1000 && level > 500,
         "{climb} climbing, {level} cruising estimates"

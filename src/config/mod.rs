@@ -259,6 +259,19 @@ fn merge(base: &mut toml::Table, over: toml::Table) {
     }
 }
 
+/// Each config text is refused with a message naming its key (tests of this module and of
+/// [`tracker`]).
+#[cfg(test)]
+fn assert_refused_naming(cases: &[(&str, &str)]) {
+    for (text, key) in cases {
+        let err = Config::from_toml_str(text).unwrap_err().to_string();
+        assert!(
+            err.contains(key),
+            "{text:?} gave {err:?}, expected it to name {key}"
+        );
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -305,13 +318,7 @@ mod tests {
                 "receiver.lat_deg",
             ),
         ];
-        for (text, key) in cases {
-            let err = Config::from_toml_str(text).unwrap_err().to_string();
-            assert!(
-                err.contains(key),
-                "{text:?} gave {err:?}, expected it to name {key}"
-            );
-        }
+        assert_refused_naming(&cases);
     }
 
     #[test]

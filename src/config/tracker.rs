@@ -542,12 +542,6 @@ mod tests {
                 "tracker.hybrid.entry_probability",
             ),
         ];
-        for (text, key) in cases {
-            let err = Config::from_toml_str(text).unwrap_err().to_string();
-            assert!(
-                err.contains(key),
-                "{text:?} gave {err:?}, expected it to name {key}"
-            );
-        }
+        crate::config::assert_refused_naming(&cases);
     }
 }

@@ -6,7 +6,7 @@
 //! Per horizontal axis the state is [p, v, a, j]; the jerk obeys
 //! j̇ = −α (j − j̄) + w, w white with density 2ασ_j². Its exact discretisation is the order-4
 //! [`singer::chain`]: F(T) is §001's matrix with p1, q1, r1, s1, G(T) eq. 15's input vector
-//! of j̄, and Q = 2ασ_j² [q_ij] with q_ij = ∫₀ᵀ g_i g_j ds (the paper only cites Qiao et al.
+//! of j̄, and Q = 2ασ_j² \[q_ij\] with q_ij = ∫₀ᵀ g_i g_j ds (the paper only cites Qiao et al.
 //! 2002; derived in [`singer`]'s module doc, series below αT = 1, tested against quadrature
 //! of exp(Aτ) b bᵀ exp(Aτ)ᵀ). The vertical axis is a plain CV.
 //!

@@ -10,13 +10,13 @@
 //! u̇ = −α (u − ū) + w, w white with spectral density 2ασ² (so that u's stationary variance
 //! is σ²; Singer 1970). Exactly, over T,
 //! x(k+1) = F(T) x(k) + G(T) ū + ∫₀ᵀ F(T−s) b w(s) ds, b = e_M, with
-//! - F[i][j] = T^{j−i}/(j−i)! for j < M−1 (polynomial part) and, for the last column,
-//!   F[i][M−1] = g_a(T) = T^a φ_a(αT) with a = M−1−i and φ_a(y) = Σ_k (−y)^k/(k+a)!
+//! - F\[i\]\[j\] = T^{j−i}/(j−i)! for j < M−1 (polynomial part) and, for the last column,
+//!   F\[i\]\[M−1\] = g_a(T) = T^a φ_a(αT) with a = M−1−i and φ_a(y) = Σ_k (−y)^k/(k+a)!
 //!   (= (−1)^a (e^{−y} − Σ_{n<a} (−y)^n/n!)/y^a). For M = 3 these are the printed
 //!   (αT − 1 + e^{−αT})/α², (1 − e^{−αT})/α, e^{−αT} of §000; for M = 4 the p1, q1, r1, s1 of
 //!   §001.
-//! - G[i] = α ∫₀ᵀ g_a(s) ds = (αT) T^a φ_{a+1}(αT): §001 eq. 15's input matrix for j̄.
-//! - Q = 2ασ² [q_ij], q_ij = ∫₀ᵀ g_{a_i}(s) g_{a_j}(s) ds.
+//! - G\[i\] = α ∫₀ᵀ g_a(s) ds = (αT) T^a φ_{a+1}(αT): §001 eq. 15's input matrix for j̄.
+//! - Q = 2ασ² \[q_ij\], q_ij = ∫₀ᵀ g_{a_i}(s) g_{a_j}(s) ds.
 //!
 //! The closed forms subtract O(1) exponentials to get results of order (αT)^k: with
 //! αT = 1e-6, q11 of the Singer model is ~1e-31 relative to its terms and f64 returns noise.
@@ -128,7 +128,7 @@ pub struct Chain<const M: usize> {
     pub f: SMatrix<f64, M, M>,
     /// Input vector G(T) of the last state's mean ū.
     pub g: SVector<f64, M>,
-    /// [q_ij] = ∫₀ᵀ g_ai g_aj ds; the process noise is 2ασ² times this.
+    /// \[q_ij\] = ∫₀ᵀ g_ai g_aj ds; the process noise is 2ασ² times this.
     pub q_unit: SMatrix<f64, M, M>,
 }
 

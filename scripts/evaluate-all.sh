@@ -14,15 +14,15 @@ mkdir -p "$out"
 fast=$(mktemp)
 # Paper 001's target reaches 9.8 km/s: lift the CPR plausibility limit for it alone.
 printf '[cpr]\nmax_speed_mps = 20000.0\n' > "$fast"
-main=(paper002 paper002-positions paper000 paper003 paper001 departure approach)
+main=(paper002 paper002-positions paper000 paper000-positions paper003 paper001 departure approach)
 for s in "${main[@]}"; do
   cfg=()
   [ "$s" = paper001 ] && cfg=(--config "$fast")
   "$bin" evaluate --scenario "$s" --runs "$runs_main" --trackers hybrid,hybrid-paper002,kalman-cv,imm \
     "${cfg[@]}" --out "$out/$s" > "$out/$s.md" 2>/dev/null
   rm -rf "$out/$s/work"
-  # The variant of paper 002 is compared on the main trackers only.
-  [ "$s" = paper002-positions ] && continue
+  # The positions-only variants are compared on the main trackers only.
+  [[ "$s" = *-positions ]] && continue
   "$bin" evaluate --scenario "$s" --runs "$runs_all" \
     --trackers hybrid,kalman-cv,imm,singer,singer-nosupp,cs-jerk,cs-jerk-plain,jerk,vsimm-srckf,imm-ckf,imm-srckf \
     "${cfg[@]}" --out "$out/$s-all" > "$out/$s-all.md" 2>/dev/null
@@ -50,7 +50,6 @@ prose=$(sed "/^${marker//\//\\/}\$/q" "$doc")
   done
   for s in "${main[@]}"; do
     [ -f "$out/$s-all.md" ] || continue
-    [ "$s" = paper002-positions ] && continue
     printf '\n'
     sed '1s/^### /### Table: /' "$out/$s-all.md"
   done

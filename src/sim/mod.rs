@@ -85,10 +85,14 @@ impl SimSummary {
 }
 
 /// The built-in scenarios: name and TOML text (fixtures/scenarios/NAME.toml, embedded).
-pub const BUILTIN: [(&str, &str); 7] = [
+pub const BUILTIN: [(&str, &str); 8] = [
     (
         "paper000",
         include_str!("../../fixtures/scenarios/paper000.toml"),
+    ),
+    (
+        "paper000-positions",
+        include_str!("../../fixtures/scenarios/paper000-positions.toml"),
     ),
     (
         "paper001",
@@ -176,8 +180,8 @@ mod tests {
         assert_eq!(
             e,
             "no scenario file \"nope\" and no built-in scenario of that name \
-             (built-in: paper000, paper001, paper002, paper002-positions, paper003, departure, \
-             approach)"
+             (built-in: paper000, paper000-positions, paper001, paper002, paper002-positions, \
+             paper003, departure, approach)"
         );
     }
 

@@ -4,7 +4,7 @@
 
 use adsb_tracker::config::Config;
 use adsb_tracker::eval::bench::{monte_carlo, read_frames, track_frames};
-use adsb_tracker::eval::score::{chi2_band_95, Scores};
+use adsb_tracker::eval::score::{chi2_band_95, offset_m, Scores};
 use std::path::PathBuf;
 
 fn fixture(name: &str) -> PathBuf {
@@ -161,10 +161,8 @@ fn errors_over_time(
     estimates
         .iter()
         .filter_map(|e| {
-            let tr = truth.at(e.t)?;
-            let frame = adsb_tracker::track::geo::LocalFrame::new(tr.lat, tr.lon, tr.alt_m);
-            let d = frame.to_enu(e.lat, e.lon, e.alt_m);
-            Some((e.t - t0, d.x.hypot(d.y)))
+            let (d, _) = offset_m(&truth.at(e.t)?, e.lat, e.lon, e.alt_m);
+            Some((e.t - t0, d.norm()))
         })
         .collect()
 }

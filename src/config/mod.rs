@@ -27,6 +27,14 @@ pub enum ConfigError {
     Invalid { key: String, problem: String },
 }
 
+/// A value of the right type refused, naming its key.
+fn bad(key: &str, problem: impl Into<String>) -> ConfigError {
+    ConfigError::Invalid {
+        key: key.to_string(),
+        problem: problem.into(),
+    }
+}
+
 /// The whole configuration.
 #[derive(Clone, Debug, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
@@ -160,12 +168,6 @@ impl Config {
 
     /// Range checks that types cannot express.
     pub fn validate(&self) -> Result<(), ConfigError> {
-        fn bad(key: &str, problem: impl Into<String>) -> ConfigError {
-            ConfigError::Invalid {
-                key: key.to_string(),
-                problem: problem.into(),
-            }
-        }
         fn positive(key: &str, v: f64) -> Result<(), ConfigError> {
             if v.is_finite() && v > 0.0 {
                 Ok(())

@@ -3,7 +3,7 @@
 //! the parameter structs of [`crate::track`]. The track module knows nothing of TOML: the
 //! daemon builds its trackers from what this module gives.
 
-use super::ConfigError;
+use super::{bad, ConfigError};
 use crate::track::cv::CvParams;
 use crate::track::divergence::DivergenceParams;
 use crate::track::gate::{GateParams, GATE_CAPACITY};
@@ -79,6 +79,22 @@ pub struct PerMode {
 }
 
 impl PerMode {
+    /// In [`crate::track::imm::ImmMode::ALL`] order, each checked by [`check`] under
+    /// `key.<mode>`.
+    fn checked(
+        &self,
+        key: &str,
+        lo: f64,
+        lo_open: bool,
+        hi: f64,
+    ) -> Result<[f64; N_MODES], ConfigError> {
+        let values = self.array();
+        for (v, name) in values.iter().zip(MODE_KEYS) {
+            check(&format!("{key}.{name}"), *v, lo, lo_open, hi)?;
+        }
+        Ok(values)
+    }
+
     /// In [`crate::track::imm::ImmMode::ALL`] order.
     fn array(&self) -> [f64; N_MODES] {
         [
@@ -142,13 +158,6 @@ pub struct HybridConfig {
     pub turn_rate_limits_deg_s: [f64; 2],
     /// IMM probability of the gate's label when the IMM opens.
     pub entry_probability: f64,
-}
-
-fn bad(key: &str, problem: impl Into<String>) -> ConfigError {
-    ConfigError::Invalid {
-        key: key.to_string(),
-        problem: problem.into(),
-    }
 }
 
 /// `v` finite and within `lo..=hi` (`lo_open`: `lo` itself excluded).
@@ -291,17 +300,9 @@ impl ImmConfig {
         divergence: DivergenceParams,
     ) -> Result<ImmParams, ConfigError> {
         let mut p = ImmParams { divergence, ..base };
-        let sojourn = self.mean_sojourn_s.array();
-        for (v, name) in sojourn.iter().zip(MODE_KEYS) {
-            check(
-                &format!("tracker.imm.mean_sojourn_s.{name}"),
-                *v,
-                0.0,
-                true,
-                1.0e6,
-            )?;
-        }
-        p.mean_sojourn_s = sojourn;
+        p.mean_sojourn_s =
+            self.mean_sojourn_s
+                .checked("tracker.imm.mean_sojourn_s", 0.0, true, 1.0e6)?;
         let key = "tracker.imm.switch_weights";
         if self.switch_weights.len() != N_MODES {
             return Err(bad(
@@ -330,16 +331,12 @@ impl ImmConfig {
                 ));
             }
         }
-        let initial = self.initial_probabilities.array();
-        for (v, name) in initial.iter().zip(MODE_KEYS) {
-            check(
-                &format!("tracker.imm.initial_probabilities.{name}"),
-                *v,
-                0.0,
-                false,
-                1.0,
-            )?;
-        }
+        let initial = self.initial_probabilities.checked(
+            "tracker.imm.initial_probabilities",
+            0.0,
+            false,
+            1.0,
+        )?;
         if initial.iter().sum::<f64>() <= 0.0 {
             return Err(bad(
                 "tracker.imm.initial_probabilities",

@@ -188,8 +188,9 @@ pub struct Scores {
     pub peak_pos_err_m: f64,
 }
 
-/// Horizontal (east, north) and vertical offset of `p` from the truth, metres.
-fn offset_m(truth: &TruthSample, lat: f64, lon: f64, alt_m: f64) -> (Vector2<f64>, f64) {
+/// Horizontal (east, north) and vertical offset of a position from the truth, metres, in
+/// the truth's own east-north-up axes.
+pub fn offset_m(truth: &TruthSample, lat: f64, lon: f64, alt_m: f64) -> (Vector2<f64>, f64) {
     let frame = LocalFrame::new(truth.lat, truth.lon, truth.alt_m);
     let e = frame.to_enu(lat, lon, alt_m);
     (Vector2::new(e.x, e.y), e.z)

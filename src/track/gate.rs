@@ -560,9 +560,10 @@ impl Gate {
     /// turning (its own slope under λ): the end of a turn must not read as the onset of
     /// another.
     ///
-    /// One pass of prefix sums serves every split: times are taken from the newest report
-    /// and headings from the oldest, so the one-pass formulas Σxy − Σx Σy / n work on numbers
-    /// of a few seconds and radians and do not cancel.
+    /// Sums over all the samples, less those of the newest m as m grows, give every split's
+    /// reference; times are taken from the newest report and headings from the oldest, so
+    /// the one-pass formulas Σxy − Σx Σy / n work on numbers of a few seconds and radians
+    /// and do not cancel.
     fn turn_onset(&self, lambda_rad_s: f64) -> Option<(f64, f64, f64)> {
         let p = &self.params;
         let all = self.recent(p.onset_reference_reports + p.onset_reports);
@@ -574,37 +575,38 @@ impl Gate {
             return None;
         }
         let (t0, y0) = (all.last()?.t_s, all.first()?.heading_rad);
-        // prefix[k] = sums over all[..k]: (Σt, Σt², Σy, Σty, Σvar).
-        let mut prefix = [[0.0; 5]; GATE_CAPACITY + 1];
-        for (k, s) in all.iter().enumerate() {
-            let (t, y) = (s.t_s - t0, s.heading_rad - y0);
-            let prev = *prefix.get(k)?;
-            *prefix.get_mut(k + 1)? = [
-                prev[0] + t,
-                prev[1] + t * t,
-                prev[2] + y,
-                prev[3] + t * y,
-                prev[4] + s.heading_var,
-            ];
+        let ty = |s: &Sample| (s.t_s - t0, s.heading_rad - y0);
+        // (Σt, Σt², Σy, Σty) over the reference, and Σy, Σvar over every sample.
+        let (mut st, mut stt, mut sy, mut sty, mut sum_var) = (0.0, 0.0, 0.0, 0.0, 0.0);
+        for s in all {
+            let (t, y) = ty(s);
+            st += t;
+            stt += t * t;
+            sy += y;
+            sty += t * y;
+            sum_var += s.heading_var;
         }
-        let n = all.len();
-        let [_, _, sum_y, _, sum_var] = *prefix.get(n)?;
+        let (n, sum_y) = (all.len(), sy);
+        let nf = n as f64;
         let mut best: Option<(f64, f64, f64)> = None;
         for m in 1..=p.onset_reports {
             let Some(split) = n.checked_sub(m).filter(|&s| s >= 3) else {
                 break;
             };
-            // The reference's own slope.
-            let [st, stt, sy, sty, _] = *prefix.get(split)?;
+            // The newest m leave the reference: its own slope.
+            let (t, y) = ty(all.get(split)?);
+            st -= t;
+            stt -= t * t;
+            sy -= y;
+            sty -= t * y;
             let k = split as f64;
             let sxx = stt - st * st / k;
             if sxx <= 0.0 || ((sty - st * sy / k) / sxx).abs() >= lambda_rad_s {
                 continue;
             }
-            let reference_end = all.get(split - 1)?;
             // The hinge h = max(0, t − t_ref): zero on the reference, so only the newest m
             // reports add to Σh, Σh², Σhy.
-            let t_ref = reference_end.t_s;
+            let t_ref = all.get(split - 1)?.t_s;
             let (mut sh, mut shh, mut shy) = (0.0, 0.0, 0.0);
             for s in all.get(split..)? {
                 let h = s.t_s - t_ref;
@@ -613,7 +615,6 @@ impl Gate {
                 shh += h * h;
                 shy += h * y;
             }
-            let nf = n as f64;
             let hxx = shh - sh * sh / nf;
             if hxx <= 0.0 {
                 continue;

@@ -367,13 +367,12 @@ impl HybridTracker {
 
     /// The turn rate for the CT models: the rate of the current turn since it began, as the
     /// gate measures it, while a turn holds; the configured rate otherwise.
-    fn turn_rate(&self, t_s: f64, reading: &GateReading) -> f64 {
+    /// `stale`: no measured velocity ([`HybridTracker::velocity_stale`]), so no rate
+    /// worth adapting to.
+    fn turn_rate(&self, stale: bool, reading: &GateReading) -> f64 {
         let (lo, hi) = self.params.turn_rate_limits_deg_s;
         let default = self.params.imm.models.ct.omega_rad_s.abs();
-        if !self.params.adapt_turn_rate
-            || reading.lateral() == Lateral::Straight
-            || self.velocity_stale(t_s)
-        {
+        if !self.params.adapt_turn_rate || reading.lateral() == Lateral::Straight || stale {
             return default;
         }
         self.gate
@@ -402,7 +401,8 @@ impl HybridTracker {
             || f.speed_change
             || f.accel_change
             || f.heading_change;
-        let blind = self.params.imm_without_velocity && self.velocity_stale(t_s);
+        let stale = self.velocity_stale(t_s);
+        let blind = self.params.imm_without_velocity && stale;
         let needs_imm = (reading.manoeuvre() && horizontal) || trigger || blind;
         // Without measured velocities the gate reads the filter's own velocity, whose
         // report-to-report scatter in a manoeuvre is large: it releases mid-turn. There the
@@ -410,7 +410,7 @@ impl HybridTracker {
         // IMM still believes in keeps it on (measured on paper 002 fed positions only: the
         // hybrid left the IMM a dozen times per turn, turn RMSE 49 m against the IMM's 23 m).
         let imm_manoeuvre = matches!(self.branch, Branch::Imm { .. })
-            && self.velocity_stale(t_s)
+            && stale
             && self.imm.most_probable() != ImmMode::Cv;
         if needs_imm || imm_manoeuvre {
             self.last_fire_t_s = t_s;
@@ -451,7 +451,7 @@ impl HybridTracker {
             _ => {}
         }
         if let Branch::Imm { by_divergence } = self.branch {
-            let rate = self.turn_rate(t_s, &reading);
+            let rate = self.turn_rate(stale, &reading);
             self.imm.set_turn_rate(rate);
             if reading.manoeuvre() {
                 self.branch = Branch::Imm {
@@ -468,7 +468,7 @@ impl HybridTracker {
                     speed: reading.speed(),
                     vertical: reading.vertical(),
                 },
-                _ if blind || by_divergence || self.velocity_stale(t_s) => {
+                _ if stale || by_divergence => {
                     let x = self.imm.combined_state();
                     labels_of_mode(self.imm.most_probable(), &x, &self.params.axes)
                 }

@@ -283,10 +283,21 @@ pub fn parse_callsign(s: &str) -> Option<Callsign> {
 
 impl Scenario {
     /// Parses and validates a scenario from TOML text.
+    ///
+    /// A file whose only table is `[fleet]` ([`FleetFile`]) is a generated fleet: the
+    /// generator and its seed stand in the file, not a thousand aircraft.
     pub fn from_toml_str(text: &str) -> Result<Self, SimError> {
-        let scenario: Scenario = toml::from_str(text).map_err(|e| SimError::Parse {
+        let parse_error = |e: toml::de::Error| SimError::Parse {
             message: e.to_string(),
-        })?;
+        };
+        let table: toml::Table = toml::from_str(text).map_err(parse_error)?;
+        if table.contains_key("fleet") {
+            let file: FleetFile = toml::from_str(text).map_err(parse_error)?;
+            let scenario = fleet(&file.fleet)?;
+            scenario.validate()?;
+            return Ok(scenario);
+        }
+        let scenario: Scenario = toml::from_str(text).map_err(parse_error)?;
         scenario.validate()?;
         Ok(scenario)
     }
@@ -410,8 +421,17 @@ impl Scenario {
     }
 }
 
+/// A scenario file that names a generated fleet: `[fleet]` with the keys of [`FleetSpec`]
+/// (`reference = { lat_deg, lon_deg }`, `aircraft`, `radius_km`, `duration_s`, `seed`).
+#[derive(Clone, Copy, Debug, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FleetFile {
+    pub fleet: FleetSpec,
+}
+
 /// What the fleet generator needs: how many aircraft, where, for how long.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct FleetSpec {
     pub reference: Reference,
     /// Number of aircraft.

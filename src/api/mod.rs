@@ -14,7 +14,6 @@ use axum::response::{Html, IntoResponse, Response};
 use axum::routing::get;
 use axum::{Json, Router};
 use serde::{Deserialize, Serialize};
-use std::sync::Arc;
 
 /// The one error type of the API.
 #[derive(Debug, thiserror::Error)]
@@ -79,7 +78,7 @@ struct TracksQuery {
 struct TracksBody {
     /// Feed time of the newest frame, s.
     time: f64,
-    tracks: Vec<Arc<TrackState>>,
+    tracks: Vec<TrackState>,
 }
 
 /// A latitude/longitude box; `west > east` crosses the antimeridian.
@@ -165,7 +164,7 @@ async fn tracks(
 async fn track(
     State(shared): State<Shared>,
     Path(icao): Path<String>,
-) -> Result<Json<Arc<TrackState>>, ApiError> {
+) -> Result<Json<TrackState>, ApiError> {
     let icao: Icao = icao.parse().map_err(ApiError::BadRequest)?;
     shared
         .registry
@@ -197,7 +196,7 @@ async fn prediction(
         icao,
         t: t.t,
         mode: t.mode,
-        predictions: t.predictions.clone(),
+        predictions: t.predictions,
     }))
 }
 
@@ -207,21 +206,28 @@ async fn stats(State(shared): State<Shared>) -> Json<crate::daemon::stats::Stats
 
 #[derive(Serialize)]
 struct Health {
-    /// "ok", or "degraded" when live feeds are configured and none is connected.
+    /// "ok", or "degraded" when live feeds are configured and none is connected, or when
+    /// the ingest lag is past `pipeline.max_lag_s`.
     status: &'static str,
     feed_time: f64,
+    /// Age of the frames being routed, s (0 when idle).
+    ingest_lag_s: f64,
     tracks: usize,
     feeds: Vec<crate::feed::tcp::FeedStatusSnapshot>,
 }
 
-/// 200 while the daemon can serve fresh data; 503 when every live feed is down (the API
-/// keeps serving the last state meanwhile).
+/// 200 while the daemon can serve fresh data; 503 when every live feed is down or ingest
+/// lags more than `pipeline.max_lag_s` behind (the API keeps serving the last state
+/// meanwhile).
 async fn healthz(State(shared): State<Shared>) -> Response {
     let feeds = shared.stats.feeds();
-    let degraded = !feeds.is_empty() && !feeds.iter().any(|f| f.connected);
+    let feeds_down = !feeds.is_empty() && !feeds.iter().any(|f| f.connected);
+    let lag_s = shared.stats.ingest_lag_s();
+    let degraded = feeds_down || lag_s > shared.stats.max_lag_s();
     let body = Health {
         status: if degraded { "degraded" } else { "ok" },
         feed_time: shared.stats.feed_time_s(),
+        ingest_lag_s: lag_s,
         tracks: shared.registry.len(),
         feeds,
     };

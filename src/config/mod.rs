@@ -27,6 +27,10 @@ pub enum ConfigError {
     Invalid { key: String, problem: String },
 }
 
+/// Largest `tracker.channel_capacity`, batches: a per-aircraft queue longer than this only
+/// hides a pipeline that cannot keep up (and tokio refuses absurd capacities by panicking).
+const MAX_CHANNEL_CAPACITY: usize = 65_536;
+
 /// A value of the right type refused, naming its key.
 fn bad(key: &str, problem: impl Into<String>) -> ConfigError {
     ConfigError::Invalid {
@@ -50,6 +54,20 @@ pub struct Config {
     pub decode: DecodeConfig,
     pub cpr: CprConfigToml,
     pub tracker: TrackerConfig,
+    pub pipeline: PipelineConfig,
+}
+
+/// How the pipeline behaves under load (`[pipeline]`).
+#[derive(Clone, Copy, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct PipelineConfig {
+    /// `backpressure` (default: a feed faster than the pipeline is slowed, nothing is lost)
+    /// or `drop` (a full aircraft channel drops that aircraft's messages of the batch,
+    /// counted and logged).
+    pub overload: crate::daemon::router::Overload,
+    /// `/healthz` answers 503 `degraded` while the ingest lag is above this, s; a warning
+    /// is logged once per such episode.
+    pub max_lag_s: f64,
 }
 
 #[derive(Clone, Debug, Deserialize, PartialEq)]
@@ -242,9 +260,27 @@ impl Config {
                 ));
             }
         }
-        if self.tracker.channel_capacity == 0 {
-            return Err(bad("tracker.channel_capacity", "must be at least 1"));
+        if self.tracker.channel_capacity == 0
+            || self.tracker.channel_capacity > MAX_CHANNEL_CAPACITY
+        {
+            return Err(bad(
+                "tracker.channel_capacity",
+                format!("must be within 1..={MAX_CHANNEL_CAPACITY}"),
+            ));
         }
+        if !(self.pipeline.max_lag_s.is_finite()
+            && self.pipeline.max_lag_s > 0.0
+            && self.pipeline.max_lag_s <= 86_400.0)
+        {
+            return Err(bad(
+                "pipeline.max_lag_s",
+                format!(
+                    "must be within (0, 86400] s, got {}",
+                    self.pipeline.max_lag_s
+                ),
+            ));
+        }
+
         self.tracker.validate_tuning()
     }
 }
@@ -318,6 +354,12 @@ mod tests {
             (
                 "[receiver]\nlat_deg = 91.0\nlon_deg = 0.0\n",
                 "receiver.lat_deg",
+            ),
+            ("[pipeline]\noverload = \"panic\"\n", "overload"),
+            ("[pipeline]\nmax_lag_s = 0.0\n", "pipeline.max_lag_s"),
+            (
+                "[tracker]\nchannel_capacity = 2305843009213693952\n",
+                "tracker.channel_capacity",
             ),
         ];
         assert_refused_naming(&cases);

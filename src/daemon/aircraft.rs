@@ -4,19 +4,15 @@
 //! [`Aircraft`] is synchronous (so it is tested without a runtime); [`run_task`] is the tokio
 //! task around it, one per aircraft, as mini-redis has one handler per connection.
 
-use super::registry::{Prediction, Registry, TrackState};
-use super::stats::Stats;
-use crate::decode::cpr::{CprConfig, CprDecoder, PositionFix, RejectReason};
-use crate::decode::{AltitudeSource, Callsign, Decoded, Icao, Message, Velocity};
+use super::registry::{AircraftFacts, PredictionEnu, Published, Registry, Slot, TrackState};
+use super::stats::{Counts, Stats};
+use crate::decode::cpr::{CprConfig, CprDecoder, PositionFix};
+use crate::decode::{AltitudeSource, Decoded, Icao, Message, Velocity};
 use crate::track::geo::LocalFrame;
-use crate::track::{
-    Lateral, Measurement, Observed, SpeedTrend, TrackError, Tracker, TurnDirection, VerticalTrend,
-    UNMEASURED_VARIANCE,
-};
-use arc_swap::ArcSwapOption;
+use crate::track::{Measurement, Observed, Tracker, UNMEASURED_VARIANCE};
 use nalgebra::{Matrix3, Vector3};
 use std::sync::Arc;
-use std::time::Duration;
+use std::time::Instant;
 use tokio::sync::mpsc;
 use tokio_util::sync::CancellationToken;
 
@@ -97,22 +93,16 @@ pub struct Aircraft {
     cpr: CprDecoder,
     tracker: Box<dyn Tracker>,
     frame: Option<LocalFrame>,
-    callsign: Option<Callsign>,
-    squawk: Option<u16>,
-    category: Option<(u8, u8)>,
-    nac_p: Option<u8>,
-    version: Option<u8>,
-    baro_alt_ft: Option<i32>,
+    /// What the aircraft said about itself, and the counts, as published.
+    facts: AircraftFacts,
     /// Last height used for a position, m, and whether it was measured.
     last_alt_m: Option<f64>,
     last_pos_deg: Option<(f64, f64)>,
+    /// Rotation from the local axes at `last_pos_deg` to the frame's axes, computed once per
+    /// position for the velocity reports that follow it.
+    last_rotation: Option<Matrix3<f64>>,
     /// The last position handed to the tracker: (t, lat, lon, height m), for evaluation.
     last_fix: Option<(f64, f64, f64, f64)>,
-    on_ground: bool,
-    messages: u64,
-    last_seen: f64,
-    positions_accepted: u64,
-    positions_rejected: u64,
     updates: u64,
 }
 
@@ -123,20 +113,14 @@ impl Aircraft {
             cpr: CprDecoder::new(cfg.cpr),
             tracker: (cfg.tracker)(&cfg.tracker_config),
             frame: None,
-            callsign: None,
-            squawk: None,
-            category: None,
-            nac_p: None,
-            version: None,
-            baro_alt_ft: None,
+            facts: AircraftFacts {
+                last_seen: f64::NEG_INFINITY,
+                ..AircraftFacts::default()
+            },
             last_alt_m: None,
             last_pos_deg: None,
+            last_rotation: None,
             last_fix: None,
-            on_ground: false,
-            messages: 0,
-            last_seen: f64::NEG_INFINITY,
-            positions_accepted: 0,
-            positions_rejected: 0,
             updates: 0,
         }
     }
@@ -153,30 +137,32 @@ impl Aircraft {
 
     /// Takes one decoded message. Returns true when the tracker took a measurement (so a new
     /// estimate exists and an update line is due).
-    pub fn handle(&mut self, d: &Decoded, stats: &Stats) -> bool {
-        self.messages += 1;
-        self.last_seen = self.last_seen.max(d.time_s);
+    /// Counters go to `counts`, which the caller flushes into the shared [`Stats`] once per
+    /// batch (a shared atomic per frame costs more than the frame when two cores contend).
+    pub fn handle(&mut self, d: &Decoded, counts: &mut Counts) -> bool {
+        self.facts.messages += 1;
+        self.facts.last_seen = self.facts.last_seen.max(d.time_s);
         let t = d.time_s;
         let measurement = match d.msg {
             Message::Identification { category, callsign } => {
-                self.callsign = Some(callsign);
-                self.category = Some(category);
+                self.facts.callsign = Some(callsign);
+                self.facts.category = Some(category);
                 None
             }
             Message::Squawk { squawk } | Message::Emergency { squawk, .. } => {
-                self.squawk = Some(squawk);
+                self.facts.squawk = Some(squawk);
                 None
             }
             Message::Altitude { alt_ft } => {
                 if alt_ft.is_some() {
-                    self.baro_alt_ft = alt_ft;
+                    self.facts.baro_alt_ft = alt_ft;
                 }
                 None
             }
             Message::OperationalStatus { version, nac_p, .. } => {
-                self.version = Some(version);
+                self.facts.adsb_version = Some(version);
                 if nac_p.is_some() {
-                    self.nac_p = nac_p;
+                    self.facts.nac_p = nac_p;
                 }
                 None
             }
@@ -186,9 +172,9 @@ impl Aircraft {
                 alt_source,
                 cpr,
             } => {
-                self.on_ground = false;
+                self.facts.on_ground = false;
                 if alt_source == AltitudeSource::Baro && alt_ft.is_some() {
-                    self.baro_alt_ft = alt_ft;
+                    self.facts.baro_alt_ft = alt_ft;
                 }
                 let fix = self.cpr.airborne(t, cpr);
                 self.position_measurement(
@@ -196,7 +182,7 @@ impl Aircraft {
                     fix,
                     alt_ft.map(|a| f64::from(a) * FT_TO_M),
                     type_code,
-                    stats,
+                    counts,
                 )
             }
             Message::SurfacePosition {
@@ -205,9 +191,9 @@ impl Aircraft {
                 speed_kt,
                 track_deg,
             } => {
-                self.on_ground = true;
+                self.facts.on_ground = true;
                 let fix = self.cpr.surface(t, cpr);
-                let mut m = self.position_measurement(t, fix, None, type_code, stats);
+                let mut m = self.position_measurement(t, fix, None, type_code, counts);
                 if let (Some(m), Some(speed), Some(track)) = (m.as_mut(), speed_kt, track_deg) {
                     let s = speed * KT_TO_MPS;
                     let tr = track.to_radians();
@@ -227,19 +213,11 @@ impl Aircraft {
         match self.tracker.update(&m) {
             Ok(()) => {
                 self.updates += 1;
-                stats.track_updates.inc();
+                counts.track_updates += 1;
                 true
             }
             Err(e) => {
-                let reason = match e {
-                    TrackError::NotPositiveDefinite => "not_positive_definite",
-                    TrackError::OutOfOrder { .. } => "out_of_order",
-                    TrackError::NonFinite(_) => "non_finite",
-                };
-                stats
-                    .track_errors
-                    .get_or_create(&vec![("reason", reason.to_string())])
-                    .inc();
+                counts.track_error(&e);
                 tracing::debug!(icao = %self.icao, error = %e, "tracker refused a report");
                 false
             }
@@ -252,7 +230,7 @@ impl Aircraft {
         fix: PositionFix,
         alt_m: Option<f64>,
         type_code: u8,
-        stats: &Stats,
+        counts: &mut Counts,
     ) -> Option<Measurement> {
         let (lat, lon) = match fix {
             PositionFix::Accepted {
@@ -260,16 +238,13 @@ impl Aircraft {
             } => (lat_deg, lon_deg),
             PositionFix::Pending => return None,
             PositionFix::Rejected(reason) => {
-                self.positions_rejected += 1;
-                stats
-                    .positions_rejected
-                    .get_or_create(&vec![("reason", reject_label(reason).to_string())])
-                    .inc();
+                self.facts.positions_rejected += 1;
+                counts.position_rejected(reason);
                 return None;
             }
         };
-        self.positions_accepted += 1;
-        stats.positions_accepted.inc();
+        self.facts.positions_accepted += 1;
+        counts.positions_accepted += 1;
         self.last_pos_deg = Some((lat, lon));
         // A report without altitude keeps the last height, marked as not measured.
         let (h_m, v_var) = match alt_m {
@@ -284,14 +259,16 @@ impl Aircraft {
             .frame
             .get_or_insert_with(|| LocalFrame::new(lat, lon, 0.0));
         let enu = frame.to_enu(lat, lon, h_m);
-        let epu_m = match self.nac_p {
+        let rotation = frame.rotation_from_local(lat, lon);
+        self.last_rotation = Some(rotation);
+        let epu_m = match self.facts.nac_p {
             Some(n) => NACP_EPU_M.get(usize::from(n)).copied().unwrap_or(926.0),
             None => epu_from_type_code_m(type_code),
         };
         let sigma_h = epu_m / RADIUS95_PER_SIGMA_2D;
         let h_var = sigma_h * sigma_h + CPR_QUANT_VAR_M2;
         let local_cov = Matrix3::from_diagonal(&Vector3::new(h_var, h_var, v_var));
-        let cov = frame.cov_to_enu(lat, lon, &local_cov);
+        let cov = crate::track::geo::rotate_cov(&rotation, &local_cov);
         Some(Measurement {
             t_s: t,
             position: Some(Observed { value: enu, cov }),
@@ -323,131 +300,60 @@ impl Aircraft {
     /// A velocity in the local axes at the aircraft, rotated into the track's frame. `None`
     /// before the first position (the frame's axes are unknown until then).
     fn velocity_observation(&self, local: Vector3<f64>, var: (f64, f64, f64)) -> Option<Observed> {
-        let frame = self.frame.as_ref()?;
-        let (lat, lon) = self.last_pos_deg?;
+        let rotation = self.last_rotation.as_ref()?;
         let local_cov = Matrix3::from_diagonal(&Vector3::new(var.0, var.1, var.2));
         Some(Observed {
-            value: frame.vel_to_enu(lat, lon, &local),
-            cov: frame.cov_to_enu(lat, lon, &local_cov),
+            value: rotation * local,
+            cov: crate::track::geo::rotate_cov(rotation, &local_cov),
         })
     }
 
-    /// The published state with predicted positions `horizons_s` seconds ahead.
-    pub fn snapshot_with_predictions(&self, horizons_s: &[f64]) -> Option<TrackState> {
-        let mut s = self.snapshot()?;
-        let frame = self.frame.as_ref()?;
-        s.predictions = horizons_s
-            .iter()
-            .filter_map(|&dt_s| {
-                let p = self.tracker.predict(s.t + dt_s)?;
-                let (lat, lon, alt_m) = frame.to_geodetic(&p.pos_m);
-                Some(Prediction {
+    /// Writes the published snapshot into `out` (reusing its allocation): the estimate in the
+    /// track's plane and predictions at `horizons_s`. False until the tracker has an estimate.
+    pub fn publish_into(&self, out: &mut Published, horizons_s: &[f64]) -> bool {
+        let (Some(est), Some(frame)) = (self.tracker.estimate(), self.frame) else {
+            return false;
+        };
+        out.icao = self.icao;
+        out.frame = frame;
+        out.facts = self.facts;
+        out.predictions.clear();
+        out.predictions
+            .extend(horizons_s.iter().filter_map(|&dt_s| {
+                let p = self.tracker.predict(est.t_s + dt_s)?;
+                Some(PredictionEnu {
                     dt_s,
-                    t: p.t_s,
-                    lat,
-                    lon,
-                    alt_m,
+                    t_s: p.t_s,
+                    pos_m: p.pos_m,
                     pos_sigma_m: p.pos_sigma_m(),
                 })
-            })
-            .collect();
-        Some(s)
+            }));
+        out.estimate = est;
+        true
     }
 
-    /// The published state, `None` until the tracker has an estimate.
-    pub fn snapshot(&self) -> Option<TrackState> {
+    /// The published snapshot, newly allocated; `None` until the tracker has an estimate.
+    pub fn published(&self, horizons_s: &[f64]) -> Option<Published> {
         let est = self.tracker.estimate()?;
-        let frame = self.frame.as_ref()?;
-        let (lat, lon, alt_m) = frame.to_geodetic(&est.pos_m);
-        let v = frame.vel_from_enu(lat, lon, &est.vel_mps);
-        let (ve, vn, vu) = (v.x, v.y, v.z);
-        let to_rows = |m: Matrix3<f64>| {
-            [
-                [m[(0, 0)], m[(0, 1)], m[(0, 2)]],
-                [m[(1, 0)], m[(1, 1)], m[(1, 2)]],
-                [m[(2, 0)], m[(2, 1)], m[(2, 2)]],
-            ]
-        };
-        let pos_cov = to_rows(frame.cov_from_enu(lat, lon, &est.pos_cov_m2));
-        let vel_cov = to_rows(frame.cov_from_enu(lat, lon, &est.vel_cov_m2ps2));
-        let track_deg = ve.atan2(vn).to_degrees().rem_euclid(360.0);
-        Some(TrackState {
-            t: est.t_s,
+        let mut out = Published {
             icao: self.icao,
-            lat,
-            lon,
-            alt_m,
-            ve,
-            vn,
-            vu,
-            mode: est.mode.as_str(),
-            turn: est.turn.map(|d| match d {
-                TurnDirection::Left => "left",
-                TurnDirection::Right => "right",
-            }),
-            lateral: match est.lateral {
-                Lateral::Straight => "straight",
-                Lateral::Left => "left",
-                Lateral::Right => "right",
-            },
-            speed: match est.speed {
-                SpeedTrend::Constant => "constant",
-                SpeedTrend::Increasing => "increasing",
-                SpeedTrend::Decreasing => "decreasing",
-            },
-            vertical: match est.vertical {
-                VerticalTrend::Level => "level",
-                VerticalTrend::Climb => "climb",
-                VerticalTrend::Descent => "descent",
-            },
-            filter: est.filter,
-            pos_sigma_m: est.pos_sigma_m(),
-            diverging: est.diverging,
-            vel_sigma_mps: est.vel_sigma_mps(),
-            divergence_events: est.divergence_events,
-            mode_probabilities: est.mode_probabilities.into(),
-            callsign: self.callsign.map(|c| c.as_str().to_string()),
-            squawk: self.squawk.map(|s| format!("{s:04o}")),
-            category: self.category.map(|(set, cat)| category_label(set, cat)),
-            ground_speed_mps: ve.hypot(vn),
-            track_deg,
-            vertical_rate_mps: vu,
-            baro_alt_ft: self.baro_alt_ft,
-            on_ground: self.on_ground,
-            nac_p: self.nac_p,
-            adsb_version: self.version,
-            messages: self.messages,
-            last_seen: self.last_seen,
-            positions_accepted: self.positions_accepted,
-            positions_rejected: self.positions_rejected,
-            pos_cov_enu_m2: pos_cov,
-            vel_cov_enu_m2ps2: vel_cov,
+            frame: self.frame?,
+            estimate: est,
+            facts: self.facts,
             predictions: Vec::new(),
-        })
+        };
+        self.publish_into(&mut out, horizons_s).then_some(out)
     }
-}
 
-/// The stats label of a refused position.
-fn reject_label(r: RejectReason) -> &'static str {
-    match r {
-        RejectReason::InvalidCpr => "invalid_cpr",
-        RejectReason::BadTime => "bad_time",
-        RejectReason::ZoneMismatch => "zone_mismatch",
-        RejectReason::LatitudeOutOfRange => "latitude_out_of_range",
-        RejectReason::ImpossibleSpeed => "impossible_speed",
+    /// The state with predicted positions `horizons_s` seconds ahead.
+    pub fn snapshot_with_predictions(&self, horizons_s: &[f64]) -> Option<TrackState> {
+        self.published(horizons_s).map(|p| p.track_state())
     }
-}
 
-/// "A3"-style emitter category: set A-D from the type code (4..1), category number.
-fn category_label(type_code: u8, category: u8) -> String {
-    let set = match type_code {
-        4 => 'A',
-        3 => 'B',
-        2 => 'C',
-        1 => 'D',
-        _ => '?',
-    };
-    format!("{set}{category}")
+    /// The state (no predictions), `None` until the tracker has an estimate.
+    pub fn snapshot(&self) -> Option<TrackState> {
+        self.snapshot_with_predictions(&[])
+    }
 }
 
 /// Everything a task needs besides its aircraft.
@@ -456,46 +362,52 @@ pub struct TaskContext {
     pub stats: Arc<Stats>,
     /// Where update lines go (`--tracks-out`), one `Vec<u8>` of lines per processed batch.
     pub updates: Option<mpsc::Sender<Vec<u8>>>,
-    /// Wall-clock silence after which a task retires even if the feed's clock stopped
-    /// (a dead feed): the feed-time retirement is done by the router.
-    pub idle: Duration,
     pub shutdown: CancellationToken,
     /// Horizons of the published predictions, s.
     pub prediction_horizons_s: Vec<f64>,
 }
 
+/// One channel message to an aircraft task: its messages of one feed batch.
+#[derive(Debug)]
+pub struct AircraftBatch {
+    pub msgs: Vec<Decoded>,
+    /// When the feed batch they came in was read (or, for a paced replay, was due): the
+    /// start of the latency the task records when it has published.
+    pub arrived: Instant,
+}
+
 /// The task of one aircraft: receives batches of its messages, updates, publishes.
 ///
-/// Ends when the router drops its sender (the router retired it, or the stream ended: the
-/// remaining batches are drained first and the last snapshot stays published), on shutdown,
-/// or after `idle` of wall-clock silence (a dead feed), when it unpublishes itself.
+/// Ends when the router drops its sender (the router retired it after feed-time or
+/// wall-clock silence, or the stream ended: the remaining batches are drained first and the
+/// last snapshot stays published) or on shutdown.
+///
+/// Publishing reuses the previous snapshot's allocation when no reader holds it any more,
+/// so a steady stream allocates nothing per batch.
 pub async fn run_task(
     mut aircraft: Aircraft,
-    mut rx: mpsc::Receiver<Vec<Decoded>>,
-    slot: Arc<ArcSwapOption<TrackState>>,
+    mut rx: mpsc::Receiver<AircraftBatch>,
+    slot: Slot,
     ctx: Arc<TaskContext>,
 ) {
     let icao = aircraft.icao;
     let mut lines: Vec<u8> = Vec::new();
+    let mut spare: Option<Arc<Published>> = None;
+    let mut counts = Counts::default();
+    let cancelled = ctx.shutdown.cancelled();
+    tokio::pin!(cancelled);
     loop {
         let batch = tokio::select! {
             biased;
-            _ = ctx.shutdown.cancelled() => break,
+            _ = &mut cancelled => break,
             b = rx.recv() => match b {
                 Some(b) => b,
                 None => break,
             },
-            _ = tokio::time::sleep(ctx.idle) => {
-                tracing::debug!(%icao, "idle, retiring");
-                ctx.registry.remove(icao);
-                ctx.stats.tracks_retired.inc();
-                break;
-            }
         };
-        let mut changed = false;
-        for d in &batch {
-            if aircraft.handle(d, &ctx.stats) {
-                changed = true;
+        ctx.stats.dequeued_for_aircraft(batch.msgs.len());
+        for d in &batch.msgs {
+            if aircraft.handle(d, &mut counts) {
                 if ctx.updates.is_some() {
                     if let Some(s) = aircraft.snapshot() {
                         // Serialising a plain struct of numbers and strings cannot fail.
@@ -506,13 +418,11 @@ pub async fn run_task(
                 }
             }
         }
-        if changed {
-            slot.store(
-                aircraft
-                    .snapshot_with_predictions(&ctx.prediction_horizons_s)
-                    .map(Arc::new),
-            );
-        }
+        counts.flush(&ctx.stats);
+        // Once per batch, whether or not the tracker moved: the message counts and the
+        // identity fields are part of the snapshot too.
+        publish(&aircraft, &slot, &mut spare, &ctx.prediction_horizons_s);
+        ctx.stats.observe_latency(batch.arrived.elapsed());
         if let Some(tx) = &ctx.updates {
             if !lines.is_empty() && tx.send(std::mem::take(&mut lines)).await.is_err() {
                 tracing::warn!(%icao, "update writer gone");
@@ -520,4 +430,26 @@ pub async fn run_task(
         }
     }
     ctx.stats.tracks_active.dec();
+}
+
+/// Swaps the aircraft's new snapshot into its slot, built in `spare` when no reader still
+/// holds that one (the previous-but-one snapshot), else in a new allocation.
+fn publish(
+    aircraft: &Aircraft,
+    slot: &Slot,
+    spare: &mut Option<Arc<Published>>,
+    horizons_s: &[f64],
+) {
+    let reused = spare
+        .as_mut()
+        .and_then(Arc::get_mut)
+        .map(|p| aircraft.publish_into(p, horizons_s));
+    let next = match reused {
+        Some(true) => spare.take(),
+        Some(false) => return,
+        None => aircraft.published(horizons_s).map(Arc::new),
+    };
+    if next.is_some() {
+        *spare = slot.swap(next);
+    }
 }

@@ -4,7 +4,7 @@
 
 use super::aircraft::{Aircraft, AircraftConfig};
 use super::registry::TrackState;
-use super::stats::Stats;
+use super::stats::{Counts, Stats};
 use crate::decode::{Decoder, DecoderConfig, Icao};
 use crate::feed::RawFrame;
 use std::collections::HashMap;
@@ -27,6 +27,7 @@ pub struct SyncPipeline {
     aircraft: HashMap<Icao, Aircraft>,
     cfg: AircraftConfig,
     stats: Stats,
+    counts: Counts,
 }
 
 impl SyncPipeline {
@@ -36,6 +37,7 @@ impl SyncPipeline {
             aircraft: HashMap::new(),
             cfg,
             stats: Stats::new(),
+            counts: Counts::default(),
         }
     }
 
@@ -51,11 +53,28 @@ impl SyncPipeline {
             .or_insert_with(|| Aircraft::new(d.icao, cfg));
         let fix_before = ac.last_fix();
         let start = Instant::now();
-        let updated = ac.handle(&d, &self.stats);
+        let updated = ac.handle(&d, &mut self.counts);
         let cpu_ns = start.elapsed().as_nanos() as u64;
+        self.counts.flush(&self.stats);
         let fix = ac.last_fix().filter(|f| Some(*f) != fix_before);
         let state = if updated { ac.snapshot() } else { None };
         (fix.is_some() || state.is_some()).then_some(Update { state, cpu_ns, fix })
+    }
+
+    /// Takes one frame without making a state: returns the wall time, ns, of the aircraft's
+    /// handling of the message (CPR, measurement, filter) when it updated the tracker.
+    /// What `benches/fleet.rs` times.
+    pub fn push_timed(&mut self, frame: &RawFrame) -> Option<u64> {
+        let d = self.decoder.decode(frame).ok()?;
+        let cfg = &self.cfg;
+        let ac = self
+            .aircraft
+            .entry(d.icao)
+            .or_insert_with(|| Aircraft::new(d.icao, cfg));
+        let start = Instant::now();
+        let updated = ac.handle(&d, &mut self.counts);
+        let cpu_ns = start.elapsed().as_nanos() as u64;
+        updated.then_some(cpu_ns)
     }
 
     /// Counters so far (positions, updates, errors).

@@ -3,9 +3,19 @@
 //! Each aircraft owns one `ArcSwapOption` slot: publishing is a lock-free pointer swap, and the
 //! map of slots is locked only when a task is spawned or retired (never per frame, never across
 //! an `.await`). Readers never block a task.
+//!
+//! What a task publishes is a [`Published`]: the tracker's estimate in the aircraft's own
+//! east-north-up plane and the raw facts the aircraft reported, with no geodesy and no string.
+//! The [`TrackState`] that the API and `--tracks-out` speak (latitude, longitude, covariances
+//! in the axes at the aircraft, callsign text) is made from it on read, by
+//! [`Published::track_state`]: at fleet scale most snapshots are replaced before anyone
+//! reads them, and converting every one cost a sixth of the CPU.
 
-use crate::decode::Icao;
+use crate::decode::{Callsign, Icao};
+use crate::track::geo::LocalFrame;
+use crate::track::{Estimate, Lateral, SpeedTrend, TurnDirection, VerticalTrend};
 use arc_swap::ArcSwapOption;
+use nalgebra::{Matrix3, Vector3};
 use serde::Serialize;
 use std::collections::HashMap;
 use std::sync::{Arc, RwLock};
@@ -117,15 +127,167 @@ pub struct Prediction {
     pub pos_sigma_m: f64,
 }
 
+/// A prediction in the track's plane, as published (converted on read).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PredictionEnu {
+    /// Seconds ahead of the estimate.
+    pub dt_s: f64,
+    /// Feed time of the prediction, s.
+    pub t_s: f64,
+    /// Position, m, in the track's plane.
+    pub pos_m: Vector3<f64>,
+    /// 1-sigma horizontal position uncertainty, m.
+    pub pos_sigma_m: f64,
+}
+
+/// What an aircraft said about itself, as decoded (no text made yet).
+#[derive(Clone, Copy, Debug, PartialEq, Default)]
+pub struct AircraftFacts {
+    pub callsign: Option<Callsign>,
+    /// Mode A code as its 12 bits (printed in octal).
+    pub squawk: Option<u16>,
+    /// (type code, category) of the identification message.
+    pub category: Option<(u8, u8)>,
+    pub baro_alt_ft: Option<i32>,
+    pub on_ground: bool,
+    pub nac_p: Option<u8>,
+    pub adsb_version: Option<u8>,
+    pub messages: u64,
+    /// Feed time of the last message, s.
+    pub last_seen: f64,
+    pub positions_accepted: u64,
+    pub positions_rejected: u64,
+}
+
+/// One aircraft's published snapshot: estimate in the track's plane, the plane, the facts.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Published {
+    pub icao: Icao,
+    /// The track's east-north-up plane (the estimate's coordinates).
+    pub frame: LocalFrame,
+    pub estimate: Estimate,
+    pub facts: AircraftFacts,
+    /// Predictions at the configured horizons (empty in `--tracks-out` lines).
+    pub predictions: Vec<PredictionEnu>,
+}
+
+impl Published {
+    /// The API's and `--tracks-out`'s view: geodetic position, velocity and covariances in
+    /// the axes at the aircraft, labels and texts.
+    pub fn track_state(&self) -> TrackState {
+        let est = &self.estimate;
+        let frame = &self.frame;
+        let facts = &self.facts;
+        let (lat, lon, alt_m) = frame.to_geodetic(&est.pos_m);
+        // One rotation (frame axes -> axes at the aircraft) serves the velocity and both
+        // covariances.
+        let to_local = frame.rotation_from_local(lat, lon).transpose();
+        let v = to_local * est.vel_mps;
+        let (ve, vn, vu) = (v.x, v.y, v.z);
+        let to_rows = |m: Matrix3<f64>| {
+            [
+                [m[(0, 0)], m[(0, 1)], m[(0, 2)]],
+                [m[(1, 0)], m[(1, 1)], m[(1, 2)]],
+                [m[(2, 0)], m[(2, 1)], m[(2, 2)]],
+            ]
+        };
+        let pos_cov = to_rows(crate::track::geo::rotate_cov(&to_local, &est.pos_cov_m2));
+        let vel_cov = to_rows(crate::track::geo::rotate_cov(&to_local, &est.vel_cov_m2ps2));
+        let track_deg = ve.atan2(vn).to_degrees().rem_euclid(360.0);
+        TrackState {
+            t: est.t_s,
+            icao: self.icao,
+            lat,
+            lon,
+            alt_m,
+            ve,
+            vn,
+            vu,
+            mode: est.mode.as_str(),
+            turn: est.turn.map(|d| match d {
+                TurnDirection::Left => "left",
+                TurnDirection::Right => "right",
+            }),
+            lateral: match est.lateral {
+                Lateral::Straight => "straight",
+                Lateral::Left => "left",
+                Lateral::Right => "right",
+            },
+            speed: match est.speed {
+                SpeedTrend::Constant => "constant",
+                SpeedTrend::Increasing => "increasing",
+                SpeedTrend::Decreasing => "decreasing",
+            },
+            vertical: match est.vertical {
+                VerticalTrend::Level => "level",
+                VerticalTrend::Climb => "climb",
+                VerticalTrend::Descent => "descent",
+            },
+            filter: est.filter,
+            pos_sigma_m: est.pos_sigma_m(),
+            diverging: est.diverging,
+            vel_sigma_mps: est.vel_sigma_mps(),
+            divergence_events: est.divergence_events,
+            mode_probabilities: est.mode_probabilities.into(),
+            callsign: facts.callsign.map(|c| c.as_str().to_string()),
+            squawk: facts.squawk.map(|s| format!("{s:04o}")),
+            category: facts.category.map(|(set, cat)| category_label(set, cat)),
+            ground_speed_mps: ve.hypot(vn),
+            track_deg,
+            vertical_rate_mps: vu,
+            baro_alt_ft: facts.baro_alt_ft,
+            on_ground: facts.on_ground,
+            nac_p: facts.nac_p,
+            adsb_version: facts.adsb_version,
+            messages: facts.messages,
+            last_seen: facts.last_seen,
+            positions_accepted: facts.positions_accepted,
+            positions_rejected: facts.positions_rejected,
+            pos_cov_enu_m2: pos_cov,
+            vel_cov_enu_m2ps2: vel_cov,
+            predictions: self
+                .predictions
+                .iter()
+                .map(|p| {
+                    let (lat, lon, alt_m) = frame.to_geodetic(&p.pos_m);
+                    Prediction {
+                        dt_s: p.dt_s,
+                        t: p.t_s,
+                        lat,
+                        lon,
+                        alt_m,
+                        pos_sigma_m: p.pos_sigma_m,
+                    }
+                })
+                .collect(),
+        }
+    }
+}
+
+/// "A3"-style emitter category: set A-D from the type code (4..1), category number.
+fn category_label(type_code: u8, category: u8) -> String {
+    let set = match type_code {
+        4 => 'A',
+        3 => 'B',
+        2 => 'C',
+        1 => 'D',
+        _ => '?',
+    };
+    format!("{set}{category}")
+}
+
+/// One aircraft's slot: the task swaps its newest [`Published`] in.
+pub type Slot = Arc<ArcSwapOption<Published>>;
+
 /// What the API can read: every aircraft's latest snapshot.
 #[derive(Default)]
 pub struct Registry {
-    slots: RwLock<HashMap<Icao, Arc<ArcSwapOption<TrackState>>>>,
+    slots: RwLock<HashMap<Icao, Slot>>,
 }
 
 impl Registry {
     /// A slot for a new aircraft task (empty until its first estimate).
-    pub fn register(&self, icao: Icao) -> Arc<ArcSwapOption<TrackState>> {
+    pub fn register(&self, icao: Icao) -> Slot {
         let slot = Arc::new(ArcSwapOption::empty());
         if let Ok(mut m) = self.slots.write() {
             m.insert(icao, slot.clone());
@@ -140,20 +302,34 @@ impl Registry {
         }
     }
 
-    /// One aircraft's latest snapshot.
-    pub fn get(&self, icao: Icao) -> Option<Arc<TrackState>> {
+    /// One aircraft's latest snapshot, as published.
+    pub fn get_published(&self, icao: Icao) -> Option<Arc<Published>> {
         let m = self.slots.read().ok()?;
         m.get(&icao)?.load_full()
     }
 
-    /// Every aircraft that has an estimate, sorted by address (stable output).
-    pub fn all(&self) -> Vec<Arc<TrackState>> {
-        let mut v: Vec<Arc<TrackState>> = match self.slots.read() {
+    /// One aircraft's latest state.
+    pub fn get(&self, icao: Icao) -> Option<TrackState> {
+        self.get_published(icao).map(|p| p.track_state())
+    }
+
+    /// Every aircraft's latest snapshot as published, sorted by address. The lock is held
+    /// only to copy the pointers.
+    pub fn all_published(&self) -> Vec<Arc<Published>> {
+        let mut v: Vec<Arc<Published>> = match self.slots.read() {
             Ok(m) => m.values().filter_map(|s| s.load_full()).collect(),
             Err(_) => Vec::new(),
         };
         v.sort_by_key(|t| t.icao);
         v
+    }
+
+    /// Every aircraft that has an estimate, sorted by address (stable output).
+    pub fn all(&self) -> Vec<TrackState> {
+        self.all_published()
+            .iter()
+            .map(|p| p.track_state())
+            .collect()
     }
 
     /// Aircraft tasks registered (with or without an estimate yet).

@@ -1,25 +1,53 @@
 //! The router: decodes frame batches and hands each aircraft its messages.
 //!
 //! One router task owns the decoder (CRC, recent-address filter) and the map from ICAO
-//! address to aircraft channel, so routing takes no lock. Messages of one batch are grouped
-//! per aircraft and sent as one channel message each: a channel hop per frame would cost more
-//! than the decoding. A full aircraft channel drops that batch and counts it.
+//! address to aircraft channel, so routing takes no lock. Messages of one batch are gathered
+//! per aircraft and sent as one channel message each: a channel hop and a task wake-up per
+//! frame would cost more than the decoding.
+//!
+//! Nothing is dropped by default ([`Overload::Backpressure`]): when an aircraft's channel is
+//! full the router waits for room, its own input channel fills, the feed stops reading its
+//! socket and TCP flow control slows the sender (a replay simply waits). Shedding load is a
+//! policy the user must choose ([`Overload::Drop`]): counted, and logged once per episode.
 
-use super::aircraft::{run_task, Aircraft, AircraftConfig, TaskContext};
+use super::aircraft::{run_task, Aircraft, AircraftBatch, AircraftConfig, TaskContext};
 use super::stats::Stats;
 use crate::decode::{DecodeStats, Decoded, Decoder, DecoderConfig, Icao};
 use crate::feed::tcp::FrameBatch;
-use std::collections::HashMap;
+use rustc_hash::FxHashMap;
+use serde::Deserialize;
 use std::sync::Arc;
+use std::time::{Duration, Instant};
 use tokio::sync::mpsc;
 use tokio::task::JoinSet;
 
 /// How often (feed seconds) the router looks for aircraft to retire.
 const SWEEP_PERIOD_S: f64 = 1.0;
+/// How often (wall clock) the router looks for aircraft silent in wall time (a dead feed
+/// whose clock stopped).
+const WALL_SWEEP_PERIOD: Duration = Duration::from_secs(1);
+/// While dropping, at most one warning per this long.
+const DROP_LOG_PERIOD: Duration = Duration::from_secs(10);
+
+/// What the router does when an aircraft task's channel is full (`pipeline.overload`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Overload {
+    /// Wait for room: the feed is slowed, nothing is lost (the default).
+    #[default]
+    Backpressure,
+    /// Drop that aircraft's messages of the batch, count them (`channel_drops`,
+    /// `channel_dropped_messages`) and warn once per episode.
+    Drop,
+}
 
 struct Handle {
-    tx: mpsc::Sender<Vec<Decoded>>,
+    tx: mpsc::Sender<AircraftBatch>,
     last_seen_s: f64,
+    /// Wall-clock arrival of its last batch.
+    last_arrival: Instant,
+    /// Messages of the batch being routed.
+    pending: Vec<Decoded>,
 }
 
 /// Router settings.
@@ -28,11 +56,38 @@ pub struct RouterConfig {
     pub aircraft: AircraftConfig,
     /// Feed seconds of silence after which an aircraft is retired.
     pub retire_after_s: f64,
+    /// Wall-clock silence after which an aircraft is retired even if the feed's clock
+    /// stopped (a dead feed).
+    pub idle: Duration,
     /// Capacity of each aircraft channel, in batches.
     pub channel_capacity: usize,
-    /// Wait for room in a full aircraft channel instead of dropping (replays: waiting only
-    /// slows the replay, and an evaluation must see every frame). Live feeds drop and count.
-    pub lossless: bool,
+    pub overload: Overload,
+}
+
+/// Counts and logs drops under [`Overload::Drop`]: one warning when an episode starts, then
+/// at most one per [`DROP_LOG_PERIOD`] with the count since.
+#[derive(Default)]
+struct DropLog {
+    since_log: u64,
+    last_log: Option<Instant>,
+}
+
+impl DropLog {
+    fn dropped(&mut self, n: u64, stats: &Stats) {
+        stats.channel_drops.inc();
+        stats.channel_dropped_messages.inc_by(n);
+        self.since_log += n;
+        let due = self.last_log.is_none_or(|t| t.elapsed() >= DROP_LOG_PERIOD);
+        if due {
+            tracing::warn!(
+                dropped = self.since_log,
+                total = stats.channel_dropped_messages.get(),
+                "pipeline overloaded: dropping messages (pipeline.overload = \"drop\")"
+            );
+            self.since_log = 0;
+            self.last_log = Some(Instant::now());
+        }
+    }
 }
 
 /// Runs until the batch channel closes (end of replay) or shutdown; then closes every
@@ -45,11 +100,14 @@ pub async fn run_router(
     let stats: Arc<Stats> = ctx.stats.clone();
     let mut decoder = Decoder::new(cfg.decoder);
     let mut flushed = DecodeStats::default();
-    let mut aircraft: HashMap<Icao, Handle> = HashMap::new();
-    let mut pending: HashMap<Icao, Vec<Decoded>> = HashMap::new();
+    let mut aircraft: FxHashMap<Icao, Handle> = FxHashMap::default();
+    let mut touched: Vec<Icao> = Vec::new();
     let mut tasks = JoinSet::new();
     let mut next_sweep_s = f64::NEG_INFINITY;
     let mut now_s = f64::NEG_INFINITY;
+    let mut drops = DropLog::default();
+    let mut wall_sweep = tokio::time::interval(WALL_SWEEP_PERIOD);
+    wall_sweep.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
 
     loop {
         let batch = tokio::select! {
@@ -59,23 +117,51 @@ pub async fn run_router(
                 Some(b) => b,
                 None => break,
             },
+            _ = wall_sweep.tick() => {
+                retire_wall_idle(&mut aircraft, cfg.idle, &ctx);
+                continue;
+            }
         };
+        stats.routing(batch.arrived, rx.len());
         stats.frames_in.inc_by(batch.frames.len() as u64);
         for frame in &batch.frames {
             now_s = now_s.max(frame.time_s);
-            if let Ok(d) = decoder.decode(frame) {
-                pending.entry(d.icao).or_default().push(d);
+            let Ok(d) = decoder.decode(frame) else {
+                continue;
+            };
+            let handle = aircraft.entry(d.icao).or_insert_with(|| {
+                let (tx, rx) = mpsc::channel(cfg.channel_capacity);
+                let slot = ctx.registry.register(d.icao);
+                stats.tracks_created.inc();
+                stats.tracks_active.inc();
+                tasks.spawn(run_task(
+                    Aircraft::new(d.icao, &cfg.aircraft),
+                    rx,
+                    slot,
+                    ctx.clone(),
+                ));
+                Handle {
+                    tx,
+                    last_seen_s: d.time_s,
+                    last_arrival: batch.arrived,
+                    pending: Vec::new(),
+                }
+            });
+            if handle.pending.is_empty() {
+                touched.push(d.icao);
             }
+            handle.pending.push(d);
         }
         stats.observe_feed_time(now_s);
         stats.add_decode(decoder.stats(), &flushed);
         flushed = decoder.stats().clone();
 
-        // Retire before routing, so a replay loop that jumps ahead in time starts afresh.
+        // Retire before sending, so a replay loop that jumps ahead in time starts afresh
+        // (an aircraft with messages in this batch is kept).
         if now_s >= next_sweep_s {
             let cutoff = now_s - cfg.retire_after_s;
             aircraft.retain(|icao, h| {
-                let keep = h.last_seen_s >= cutoff || pending.contains_key(icao);
+                let keep = h.last_seen_s >= cutoff || !h.pending.is_empty();
                 if !keep {
                     tracing::debug!(%icao, "retired after silence");
                     ctx.registry.remove(*icao);
@@ -86,53 +172,72 @@ pub async fn run_router(
             next_sweep_s = now_s + SWEEP_PERIOD_S;
         }
 
-        for (icao, msgs) in pending.drain() {
+        for icao in touched.drain(..) {
+            let Some(handle) = aircraft.get_mut(&icao) else {
+                continue;
+            };
+            let capacity = handle.pending.len();
+            let msgs = std::mem::replace(&mut handle.pending, Vec::with_capacity(capacity));
             let last = msgs.last().map_or(now_s, |d| d.time_s);
-            let handle = aircraft.entry(icao).or_insert_with(|| {
-                let (tx, rx) = mpsc::channel(cfg.channel_capacity);
-                let slot = ctx.registry.register(icao);
-                stats.tracks_created.inc();
-                stats.tracks_active.inc();
-                tasks.spawn(run_task(
-                    Aircraft::new(icao, &cfg.aircraft),
-                    rx,
-                    slot,
-                    ctx.clone(),
-                ));
-                Handle {
-                    tx,
-                    last_seen_s: last,
-                }
-            });
             handle.last_seen_s = handle.last_seen_s.max(last);
-            let n = msgs.len() as u64;
-            let sent = if cfg.lossless {
-                handle
-                    .tx
-                    .send(msgs)
-                    .await
-                    .map_err(|e| mpsc::error::TrySendError::Closed(e.0))
-            } else {
-                handle.tx.try_send(msgs)
+            handle.last_arrival = batch.arrived;
+            let n = msgs.len();
+            let msg = AircraftBatch {
+                msgs,
+                arrived: batch.arrived,
+            };
+            stats.queued_for_aircraft(n);
+            let sent = match cfg.overload {
+                Overload::Backpressure => tokio::select! {
+                    biased;
+                    _ = ctx.shutdown.cancelled() => {
+                        stats.dequeued_for_aircraft(n);
+                        break;
+                    }
+                    r = handle.tx.send(msg) => {
+                        r.map_err(|e| mpsc::error::TrySendError::Closed(e.0))
+                    }
+                },
+                Overload::Drop => handle.tx.try_send(msg),
             };
             match sent {
                 Ok(()) => {}
                 Err(mpsc::error::TrySendError::Full(_)) => {
-                    stats.channel_drops.inc();
-                    stats.channel_dropped_messages.inc_by(n);
+                    stats.dequeued_for_aircraft(n);
+                    drops.dropped(n as u64, &stats);
                 }
                 Err(mpsc::error::TrySendError::Closed(_)) => {
-                    // The task retired on its own (wall-clock idle): forget it; the next
-                    // message spawns a fresh one.
+                    // The task ended (it panicked: tasks otherwise end only when the router
+                    // drops them). Forget it; its next message spawns a fresh one.
+                    stats.dequeued_for_aircraft(n);
+                    tracing::error!(%icao, "aircraft task gone; its messages of this batch are lost");
+                    ctx.registry.remove(icao);
                     aircraft.remove(&icao);
-                    stats.channel_drops.inc();
-                    stats.channel_dropped_messages.inc_by(n);
+                    drops.dropped(n as u64, &stats);
                 }
             }
+        }
+        if rx.is_empty() {
+            stats.router_idle();
         }
         // Reap finished tasks without waiting.
         while tasks.try_join_next().is_some() {}
     }
+    stats.router_idle();
     drop(aircraft);
     while tasks.join_next().await.is_some() {}
+}
+
+/// Retires aircraft that received nothing for `idle` of wall-clock time: the feed-time sweep
+/// cannot see them when the feed's clock stopped with the feed.
+fn retire_wall_idle(aircraft: &mut FxHashMap<Icao, Handle>, idle: Duration, ctx: &TaskContext) {
+    aircraft.retain(|icao, h| {
+        let keep = h.last_arrival.elapsed() < idle;
+        if !keep {
+            tracing::debug!(%icao, "idle, retiring");
+            ctx.registry.remove(*icao);
+            ctx.stats.tracks_retired.inc();
+        }
+        keep
+    });
 }

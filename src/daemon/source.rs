@@ -129,6 +129,7 @@ pub fn run_replay(
                 let batch = FrameBatch {
                     feed: feed_name.clone(),
                     frames: std::mem::replace(&mut frames, Vec::with_capacity(8192)),
+                    arrived: Instant::now(),
                 };
                 if tx.blocking_send(batch).is_err() {
                     return Ok(reader.stats().clone());
@@ -192,6 +193,8 @@ fn send_paced(
         let batch = FrameBatch {
             feed: feed.clone(),
             frames: now.to_vec(),
+            // Due then: a replay that falls behind its schedule shows it as ingest lag.
+            arrived: start_wall + due(first.time_s),
         };
         if tx.blocking_send(batch).is_err() {
             return;

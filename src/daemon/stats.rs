@@ -4,15 +4,20 @@
 //! Hot paths never touch these per frame: the router flushes its local decode counters once
 //! per batch, aircraft tasks once per processed batch.
 
+use crate::decode::cpr::RejectReason;
 use crate::decode::DecodeStats;
+use crate::track::TrackError;
+use prometheus_client::encoding::{EncodeMetric, MetricEncoder, NoLabelSet};
 use prometheus_client::metrics::counter::Counter;
 use prometheus_client::metrics::family::Family;
 use prometheus_client::metrics::gauge::Gauge;
+use prometheus_client::metrics::{MetricType, TypedMetric};
 use prometheus_client::registry::Registry;
 use serde::Serialize;
 use std::collections::BTreeMap;
-use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::Mutex;
+use std::sync::atomic::{AtomicBool, AtomicI64, AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
 
 type Labels = Vec<(&'static str, String)>;
 
@@ -44,8 +49,18 @@ pub struct Stats {
     pub channel_drops: Counter,
     /// Messages lost with those batches.
     pub channel_dropped_messages: Counter,
+    /// Batches not delivered because an aircraft task's channel was full, under
+    /// `pipeline.overload = "drop"` only (the default waits).
     /// Set once a replay has been read to its end and every aircraft task has drained.
     pub replay_finished: std::sync::atomic::AtomicBool,
+    /// Time from a feed batch's arrival to its aircraft's published snapshot.
+    pub latency: LatencyHistogram,
+    /// Queues and the router's progress: the ingest lag.
+    routing: Arc<RoutingState>,
+    /// True while the ingest lag is past `pipeline.max_lag_s` (set by the lag monitor).
+    pub lagging: AtomicBool,
+    /// `pipeline.max_lag_s`, for `/healthz` (f64 bits).
+    max_lag_bits: AtomicU64,
     /// Highest feed time seen, s (f64 bits).
     feed_time_bits: AtomicU64,
     /// Feed status snapshots, by feed name (set by the daemon at start).
@@ -78,6 +93,15 @@ impl Stats {
             channel_drops: Counter::default(),
             channel_dropped_messages: Counter::default(),
             replay_finished: std::sync::atomic::AtomicBool::new(false),
+            latency: LatencyHistogram::default(),
+            routing: Arc::new(RoutingState {
+                aircraft_queued: AtomicI64::new(0),
+                router_queued: AtomicI64::new(0),
+                routing_arrival_ns: AtomicU64::new(0),
+                epoch: Instant::now(),
+            }),
+            lagging: AtomicBool::new(false),
+            max_lag_bits: AtomicU64::new(5f64.to_bits()),
             feed_time_bits: AtomicU64::new(0f64.to_bits()),
             feeds: Mutex::new(Vec::new()),
             registry: Registry::default(),
@@ -148,7 +172,88 @@ impl Stats {
             "Messages lost in dropped batches",
             s.channel_dropped_messages.clone(),
         );
+        registry.register(
+            "ingest_latency_seconds",
+            "Time from a frame's arrival to its aircraft's published snapshot",
+            s.latency.clone(),
+        );
+        registry.register(
+            "ingest_lag_seconds",
+            "Age of the frames the router is working on (0 when it has nothing queued)",
+            LagGauge(GaugeFn::Lag, s.routing.clone()),
+        );
+        registry.register(
+            "queued_frames",
+            "Frames queued for aircraft tasks",
+            LagGauge(GaugeFn::AircraftQueued, s.routing.clone()),
+        );
+        registry.register(
+            "queued_batches",
+            "Feed batches queued for the router",
+            LagGauge(GaugeFn::RouterQueued, s.routing.clone()),
+        );
         Self { registry, ..s }
+    }
+
+    /// `n` frames handed to aircraft tasks.
+    pub fn queued_for_aircraft(&self, n: usize) {
+        self.routing
+            .aircraft_queued
+            .fetch_add(n as i64, Ordering::Relaxed);
+    }
+
+    /// `n` frames taken by an aircraft task.
+    pub fn dequeued_for_aircraft(&self, n: usize) {
+        self.routing
+            .aircraft_queued
+            .fetch_sub(n as i64, Ordering::Relaxed);
+    }
+
+    /// Frames queued for aircraft tasks now.
+    pub fn aircraft_queued(&self) -> i64 {
+        self.routing.aircraft_queued.load(Ordering::Relaxed).max(0)
+    }
+
+    /// The router starts a batch that arrived at `arrived`, with `waiting` more batches
+    /// behind it.
+    pub fn routing(&self, arrived: Instant, waiting: usize) {
+        let r = &self.routing;
+        let ns = arrived.saturating_duration_since(r.epoch).as_nanos() as u64;
+        r.routing_arrival_ns.store(ns.max(1), Ordering::Relaxed);
+        r.router_queued.store(waiting as i64, Ordering::Relaxed);
+    }
+
+    /// The router has nothing left to do.
+    pub fn router_idle(&self) {
+        self.routing.routing_arrival_ns.store(0, Ordering::Relaxed);
+        self.routing.router_queued.store(0, Ordering::Relaxed);
+    }
+
+    /// Feed batches queued for the router.
+    pub fn router_queued(&self) -> i64 {
+        self.routing.router_queued.load(Ordering::Relaxed)
+    }
+
+    /// Ingest lag, s: how long ago the frames the router is working on arrived; 0 when it
+    /// is idle. A pipeline that keeps up shows the time one batch takes; one that falls
+    /// behind shows its backlog growing.
+    pub fn ingest_lag_s(&self) -> f64 {
+        self.routing.lag_s()
+    }
+
+    /// Sets the lag past which `/healthz` is degraded, s.
+    pub fn set_max_lag_s(&self, s: f64) {
+        self.max_lag_bits.store(s.to_bits(), Ordering::Relaxed);
+    }
+
+    /// The lag past which `/healthz` is degraded, s.
+    pub fn max_lag_s(&self) -> f64 {
+        f64::from_bits(self.max_lag_bits.load(Ordering::Relaxed))
+    }
+
+    /// Records the time from a batch's arrival to its publication.
+    pub fn observe_latency(&self, d: Duration) {
+        self.latency.observe(d);
     }
 
     /// Adds a decoder's counters accumulated since the last flush (`delta` = now - before).
@@ -236,6 +341,11 @@ impl Stats {
             tracks_retired: self.tracks_retired.get(),
             channel_drops: self.channel_drops.get(),
             channel_dropped_messages: self.channel_dropped_messages.get(),
+            ingest_lag_s: self.ingest_lag_s(),
+            lagging: self.lagging.load(Ordering::Relaxed),
+            queued_frames: self.aircraft_queued(),
+            queued_batches: self.router_queued(),
+            latency: self.latency.summary(),
             feeds: self.feeds(),
         }
     }
@@ -319,5 +429,257 @@ pub struct StatsSnapshot {
     pub tracks_retired: u64,
     pub channel_drops: u64,
     pub channel_dropped_messages: u64,
+    /// Age of the frames the router is working on, s (0 when idle).
+    pub ingest_lag_s: f64,
+    /// True while `ingest_lag_s` is past `pipeline.max_lag_s`.
+    pub lagging: bool,
+    /// Frames queued for aircraft tasks.
+    pub queued_frames: i64,
+    /// Feed batches queued for the router.
+    pub queued_batches: i64,
+    /// Arrival-to-publication latency.
+    pub latency: LatencySummary,
     pub feeds: Vec<crate::feed::tcp::FeedStatusSnapshot>,
+}
+
+/// Counters an aircraft (or the synchronous pipeline) keeps locally and flushes into the
+/// shared [`Stats`] once per batch: a shared atomic per frame costs more than the frame's
+/// work once two cores contend for its cache line.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Counts {
+    pub positions_accepted: u64,
+    pub track_updates: u64,
+    /// By [`POSITION_REJECT_REASONS`] index.
+    pub positions_rejected: [u64; 5],
+    /// By [`TRACK_ERROR_REASONS`] index.
+    pub track_errors: [u64; 3],
+}
+
+impl Counts {
+    /// Counts a refused position.
+    pub fn position_rejected(&mut self, r: RejectReason) {
+        let i = match r {
+            RejectReason::InvalidCpr => 0,
+            RejectReason::BadTime => 1,
+            RejectReason::ZoneMismatch => 2,
+            RejectReason::LatitudeOutOfRange => 3,
+            RejectReason::ImpossibleSpeed => 4,
+        };
+        if let Some(c) = self.positions_rejected.get_mut(i) {
+            *c += 1;
+        }
+    }
+
+    /// Counts a refused tracker step.
+    pub fn track_error(&mut self, e: &TrackError) {
+        let i = match e {
+            TrackError::NotPositiveDefinite => 0,
+            TrackError::OutOfOrder { .. } => 1,
+            TrackError::NonFinite(_) => 2,
+        };
+        if let Some(c) = self.track_errors.get_mut(i) {
+            *c += 1;
+        }
+    }
+
+    /// Adds everything to `stats` and starts again from zero.
+    pub fn flush(&mut self, stats: &Stats) {
+        if self.positions_accepted > 0 {
+            stats.positions_accepted.inc_by(self.positions_accepted);
+        }
+        if self.track_updates > 0 {
+            stats.track_updates.inc_by(self.track_updates);
+        }
+        let labelled = |family: &Family<Labels, Counter>, names: &[&str], counts: &[u64]| {
+            for (name, &n) in names.iter().zip(counts) {
+                if n > 0 {
+                    family
+                        .get_or_create(&vec![("reason", name.to_string())])
+                        .inc_by(n);
+                }
+            }
+        };
+        labelled(
+            &stats.positions_rejected,
+            POSITION_REJECT_REASONS,
+            &self.positions_rejected,
+        );
+        labelled(&stats.track_errors, TRACK_ERROR_REASONS, &self.track_errors);
+        *self = Self::default();
+    }
+}
+
+/// Upper bounds of the latency buckets, s: 10 µs doubling to about 42 s (23 buckets, then
+/// +Inf), fine enough to read a p99 within a factor of 2 from 10 µs to tens of seconds.
+fn latency_bounds_s() -> impl Iterator<Item = f64> {
+    (0..LATENCY_BUCKETS - 1).map(|i| 1e-5 * f64::from(1u32 << i))
+}
+const LATENCY_BUCKETS: usize = 24;
+
+/// A lock-free latency histogram (atomic buckets): observed once per aircraft batch from
+/// every worker thread, where prometheus-client's histogram takes a write lock.
+#[derive(Clone, Debug, Default)]
+pub struct LatencyHistogram {
+    inner: Arc<LatencyInner>,
+}
+
+#[derive(Debug, Default)]
+struct LatencyInner {
+    buckets: [AtomicU64; LATENCY_BUCKETS],
+    count: AtomicU64,
+    sum_ns: AtomicU64,
+}
+
+/// Quantiles read from the histogram's buckets (each the upper bound of the bucket that
+/// holds it, so within a factor of 2 above the true value).
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct LatencySummary {
+    pub count: u64,
+    pub mean_s: f64,
+    pub p50_s: f64,
+    pub p99_s: f64,
+    pub max_bucket_s: f64,
+}
+
+impl LatencyHistogram {
+    /// Records one duration.
+    pub fn observe(&self, d: Duration) {
+        let s = d.as_secs_f64();
+        let i = latency_bounds_s()
+            .position(|b| s <= b)
+            .unwrap_or(LATENCY_BUCKETS - 1);
+        if let Some(b) = self.inner.buckets.get(i) {
+            b.fetch_add(1, Ordering::Relaxed);
+        }
+        self.inner.count.fetch_add(1, Ordering::Relaxed);
+        self.inner.sum_ns.fetch_add(
+            d.as_nanos().min(u128::from(u64::MAX)) as u64,
+            Ordering::Relaxed,
+        );
+    }
+
+    /// Per-bucket counts with their upper bounds (the last is +Inf, as f64::MAX).
+    fn buckets(&self) -> Vec<(f64, u64)> {
+        latency_bounds_s()
+            .chain(std::iter::once(f64::MAX))
+            .zip(&self.inner.buckets)
+            .map(|(b, c)| (b, c.load(Ordering::Relaxed)))
+            .collect()
+    }
+
+    /// Count, mean and bucket quantiles.
+    pub fn summary(&self) -> LatencySummary {
+        let buckets = self.buckets();
+        let count: u64 = buckets.iter().map(|(_, c)| c).sum();
+        let quantile = |q: f64| {
+            let rank = (q * count as f64).ceil().max(1.0) as u64;
+            let mut seen = 0;
+            for (bound, c) in &buckets {
+                seen += c;
+                if seen >= rank {
+                    return if *bound == f64::MAX {
+                        f64::INFINITY
+                    } else {
+                        *bound
+                    };
+                }
+            }
+            0.0
+        };
+        let max_bucket_s = buckets
+            .iter()
+            .rev()
+            .find(|(_, c)| *c > 0)
+            .map_or(
+                0.0,
+                |(b, _)| if *b == f64::MAX { f64::INFINITY } else { *b },
+            );
+        LatencySummary {
+            count,
+            mean_s: if count > 0 {
+                self.inner.sum_ns.load(Ordering::Relaxed) as f64 * 1e-9 / count as f64
+            } else {
+                0.0
+            },
+            p50_s: if count > 0 { quantile(0.5) } else { 0.0 },
+            p99_s: if count > 0 { quantile(0.99) } else { 0.0 },
+            max_bucket_s,
+        }
+    }
+}
+
+impl TypedMetric for LatencyHistogram {
+    const TYPE: MetricType = MetricType::Histogram;
+}
+
+impl EncodeMetric for LatencyHistogram {
+    fn encode(&self, mut encoder: MetricEncoder) -> Result<(), std::fmt::Error> {
+        let buckets = self.buckets();
+        let count = buckets.iter().map(|(_, c)| c).sum();
+        let sum_s = self.inner.sum_ns.load(Ordering::Relaxed) as f64 * 1e-9;
+        encoder.encode_histogram::<NoLabelSet>(sum_s, count, &buckets, None)
+    }
+
+    fn metric_type(&self) -> MetricType {
+        MetricType::Histogram
+    }
+}
+
+/// The queues and the router's progress, shared with the gauges of `/metrics`.
+#[derive(Debug)]
+struct RoutingState {
+    /// Frames sent to aircraft tasks and not yet taken by them.
+    aircraft_queued: AtomicI64,
+    /// Feed batches waiting for the router (set by the router after each receive).
+    router_queued: AtomicI64,
+    /// Arrival of the batch the router is working on, ns after `epoch`; 0 when idle.
+    routing_arrival_ns: AtomicU64,
+    /// Origin of `routing_arrival_ns`.
+    epoch: Instant,
+}
+
+impl RoutingState {
+    fn lag_s(&self) -> f64 {
+        let ns = self.routing_arrival_ns.load(Ordering::Relaxed);
+        if ns == 0 {
+            return 0.0;
+        }
+        let arrived = self.epoch + Duration::from_nanos(ns);
+        Instant::now()
+            .saturating_duration_since(arrived)
+            .as_secs_f64()
+    }
+}
+
+#[derive(Clone, Copy, Debug)]
+enum GaugeFn {
+    Lag,
+    AircraftQueued,
+    RouterQueued,
+}
+
+/// A gauge computed when `/metrics` is read.
+#[derive(Clone, Debug)]
+struct LagGauge(GaugeFn, Arc<RoutingState>);
+
+impl TypedMetric for LagGauge {
+    const TYPE: MetricType = MetricType::Gauge;
+}
+
+impl EncodeMetric for LagGauge {
+    fn encode(&self, mut encoder: MetricEncoder) -> Result<(), std::fmt::Error> {
+        match self.0 {
+            GaugeFn::Lag => encoder.encode_gauge(&self.1.lag_s()),
+            GaugeFn::AircraftQueued => {
+                encoder.encode_gauge(&self.1.aircraft_queued.load(Ordering::Relaxed).max(0))
+            }
+            GaugeFn::RouterQueued => {
+                encoder.encode_gauge(&self.1.router_queued.load(Ordering::Relaxed))
+            }
+        }
+    }
+
+    fn metric_type(&self) -> MetricType {
+        MetricType::Gauge
+    }
 }

@@ -10,7 +10,7 @@ use super::{parser_for, Format, FrameParser, ParseStats, RawFrame};
 use serde::{Deserialize, Serialize};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard};
-use std::time::Duration;
+use std::time::{Duration, Instant};
 use tokio::io::AsyncReadExt;
 use tokio::net::TcpStream;
 use tokio::sync::mpsc;
@@ -49,6 +49,9 @@ pub struct FrameBatch {
     /// The feed's [`TcpFeed::name`].
     pub feed: Arc<str>,
     pub frames: Vec<RawFrame>,
+    /// When the frames were read (a paced replay: when they were due). The ingest lag and
+    /// the arrival-to-publication latency are measured from here.
+    pub arrived: Instant,
 }
 
 /// Reconnection and timeout policy.
@@ -314,6 +317,7 @@ impl Connection<'_> {
         FrameBatch {
             feed: Arc::clone(self.feed),
             frames,
+            arrived: Instant::now(),
         }
     }
 

@@ -68,6 +68,9 @@ pub struct PipelineConfig {
     /// `/healthz` answers 503 `degraded` while the ingest lag is above this, s; a warning
     /// is logged once per such episode.
     pub max_lag_s: f64,
+    /// Frames decoded and queued for aircraft tasks, all aircraft together: the bound on the
+    /// pipeline's queued memory (about 100 bytes a frame) whatever the fleet's size.
+    pub max_queued_frames: usize,
 }
 
 #[derive(Clone, Debug, Deserialize, PartialEq)]

@@ -258,8 +258,7 @@ impl Aircraft {
         let frame = *self
             .frame
             .get_or_insert_with(|| LocalFrame::new(lat, lon, 0.0));
-        let enu = frame.to_enu(lat, lon, h_m);
-        let rotation = frame.rotation_from_local(lat, lon);
+        let (enu, rotation) = frame.to_enu_with_rotation(lat, lon, h_m);
         self.last_rotation = Some(rotation);
         let epu_m = match self.facts.nac_p {
             Some(n) => NACP_EPU_M.get(usize::from(n)).copied().unwrap_or(926.0),
@@ -365,6 +364,11 @@ pub struct TaskContext {
     pub shutdown: CancellationToken,
     /// Horizons of the published predictions, s.
     pub prediction_horizons_s: Vec<f64>,
+    /// Frames queued for all aircraft tasks together ([`super::router::FrameBudget`]);
+    /// a task gives a batch's permits back once it has processed it.
+    pub budget: super::router::FrameBudget,
+    /// Size of `budget`, frames.
+    pub budget_frames: usize,
 }
 
 /// One channel message to an aircraft task: its messages of one feed batch.
@@ -374,6 +378,8 @@ pub struct AircraftBatch {
     /// When the feed batch they came in was read (or, for a paced replay, was due): the
     /// start of the latency the task records when it has published.
     pub arrived: Instant,
+    /// Permits of the router's frame budget this batch holds.
+    pub permits: u32,
 }
 
 /// The task of one aircraft: receives batches of its messages, updates, publishes.
@@ -423,6 +429,7 @@ pub async fn run_task(
         // identity fields are part of the snapshot too.
         publish(&aircraft, &slot, &mut spare, &ctx.prediction_horizons_s);
         ctx.stats.observe_latency(batch.arrived.elapsed());
+        ctx.budget.add_permits(batch.permits as usize);
         if let Some(tx) = &ctx.updates {
             if !lines.is_empty() && tx.send(std::mem::take(&mut lines)).await.is_err() {
                 tracing::warn!(%icao, "update writer gone");

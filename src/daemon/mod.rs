@@ -159,6 +159,10 @@ pub async fn run(
         updates: updates_tx,
         shutdown: pipeline_stop.clone(),
         prediction_horizons_s: config.tracker.prediction_horizons_s.clone(),
+        budget: Arc::new(tokio::sync::Semaphore::new(
+            config.pipeline.max_queued_frames,
+        )),
+        budget_frames: config.pipeline.max_queued_frames,
     });
     shared.stats.set_max_lag_s(config.pipeline.max_lag_s);
     let lag_monitor = tokio::spawn(monitor_lag(shared.stats.clone(), pipeline_stop.clone()));

@@ -18,7 +18,7 @@ use rustc_hash::FxHashMap;
 use serde::Deserialize;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
-use tokio::sync::mpsc;
+use tokio::sync::{mpsc, Semaphore};
 use tokio::task::JoinSet;
 
 /// How often (feed seconds) the router looks for aircraft to retire.
@@ -46,8 +46,10 @@ struct Handle {
     last_seen_s: f64,
     /// Wall-clock arrival of its last batch.
     last_arrival: Instant,
-    /// Messages of the batch being routed.
+    /// Messages of the batch being routed (no allocation between batches).
     pending: Vec<Decoded>,
+    /// Messages it had in the last batch: the room reserved for the next one.
+    last_batch_len: usize,
 }
 
 /// Router settings.
@@ -62,6 +64,21 @@ pub struct RouterConfig {
     /// Capacity of each aircraft channel, in batches.
     pub channel_capacity: usize,
     pub overload: Overload,
+}
+
+/// Frames the router may have handed to aircraft tasks and not yet seen processed, all
+/// aircraft together (`pipeline.max_queued_frames`). A per-aircraft channel bound alone lets
+/// the queued memory grow with the number of aircraft (a thousand aircraft with eight full
+/// batches each held 25 MB); this bounds it for any fleet: the router takes permits from
+/// it before sending, the task gives them back when it has processed the batch.
+pub type FrameBudget = Arc<Semaphore>;
+
+/// The permits a batch of `n` messages takes (at most the whole budget, so one huge batch
+/// can always go).
+pub fn permits_for(n: usize, budget_frames: usize) -> u32 {
+    n.min(budget_frames)
+        .min(Semaphore::MAX_PERMITS)
+        .min(u32::MAX as usize) as u32
 }
 
 /// Counts and logs drops under [`Overload::Drop`]: one warning when an episode starts, then
@@ -97,6 +114,7 @@ pub async fn run_router(
     cfg: RouterConfig,
     ctx: Arc<TaskContext>,
 ) {
+    let budget = ctx.budget.clone();
     let stats: Arc<Stats> = ctx.stats.clone();
     let mut decoder = Decoder::new(cfg.decoder);
     let mut flushed = DecodeStats::default();
@@ -145,10 +163,12 @@ pub async fn run_router(
                     last_seen_s: d.time_s,
                     last_arrival: batch.arrived,
                     pending: Vec::new(),
+                    last_batch_len: 4,
                 }
             });
             if handle.pending.is_empty() {
                 touched.push(d.icao);
+                handle.pending.reserve(handle.last_batch_len);
             }
             handle.pending.push(d);
         }
@@ -176,40 +196,54 @@ pub async fn run_router(
             let Some(handle) = aircraft.get_mut(&icao) else {
                 continue;
             };
-            let capacity = handle.pending.len();
-            let msgs = std::mem::replace(&mut handle.pending, Vec::with_capacity(capacity));
+            let msgs = std::mem::take(&mut handle.pending);
+            handle.last_batch_len = msgs.len();
             let last = msgs.last().map_or(now_s, |d| d.time_s);
             handle.last_seen_s = handle.last_seen_s.max(last);
             handle.last_arrival = batch.arrived;
             let n = msgs.len();
+            let permits = permits_for(n, ctx.budget_frames);
             let msg = AircraftBatch {
                 msgs,
                 arrived: batch.arrived,
+                permits,
             };
             stats.queued_for_aircraft(n);
             let sent = match cfg.overload {
                 Overload::Backpressure => tokio::select! {
                     biased;
-                    _ = ctx.shutdown.cancelled() => {
-                        stats.dequeued_for_aircraft(n);
-                        break;
-                    }
-                    r = handle.tx.send(msg) => {
-                        r.map_err(|e| mpsc::error::TrySendError::Closed(e.0))
-                    }
+                    _ = ctx.shutdown.cancelled() => break,
+                    r = async {
+                        // Room in the global budget, then in the aircraft's channel.
+                        if let Ok(p) = budget.acquire_many(permits).await {
+                            p.forget();
+                        }
+                        handle.tx.send(msg).await
+                    } => r.map_err(|e| mpsc::error::TrySendError::Closed(e.0)),
                 },
-                Overload::Drop => handle.tx.try_send(msg),
+                Overload::Drop => match budget.try_acquire_many(permits) {
+                    Ok(p) => {
+                        p.forget();
+                        handle.tx.try_send(msg)
+                    }
+                    Err(_) => Err(mpsc::error::TrySendError::Full(AircraftBatch {
+                        permits: 0,
+                        ..msg
+                    })),
+                },
             };
             match sent {
                 Ok(()) => {}
-                Err(mpsc::error::TrySendError::Full(_)) => {
+                Err(mpsc::error::TrySendError::Full(m)) => {
                     stats.dequeued_for_aircraft(n);
+                    budget.add_permits(m.permits as usize);
                     drops.dropped(n as u64, &stats);
                 }
-                Err(mpsc::error::TrySendError::Closed(_)) => {
+                Err(mpsc::error::TrySendError::Closed(m)) => {
                     // The task ended (it panicked: tasks otherwise end only when the router
                     // drops them). Forget it; its next message spawns a fresh one.
                     stats.dequeued_for_aircraft(n);
+                    budget.add_permits(m.permits as usize);
                     tracing::error!(%icao, "aircraft task gone; its messages of this batch are lost");
                     ctx.registry.remove(icao);
                     aircraft.remove(&icao);

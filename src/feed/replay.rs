@@ -11,8 +11,10 @@ use std::fs::File;
 use std::io::{ErrorKind, Read};
 use std::path::{Path, PathBuf};
 
-/// Bytes read from the file per batch.
-pub const CHUNK_BYTES: usize = 64 * 1024;
+/// Bytes read from the file per batch: 256 KiB, about 11,000 Beast frames, so that at fleet
+/// scale each aircraft task is woken for ~10 messages rather than ~3 (the channel hop and
+/// wake-up per aircraft per batch were 10 % of the CPU at 64 KiB).
+pub const CHUNK_BYTES: usize = 256 * 1024;
 
 /// A recording opened for reading, frame batch by frame batch.
 pub struct FileReader {

@@ -17,8 +17,10 @@ use tokio::sync::mpsc;
 use tokio_util::sync::CancellationToken;
 
 /// Bytes asked of the socket per read (a parser leaves at most one line unconsumed, which
-/// [`MAX_LINE_BYTES`](super::text::MAX_LINE_BYTES) keeps well below this).
-const READ_BYTES: usize = 64 * 1024;
+/// [`MAX_LINE_BYTES`](super::text::MAX_LINE_BYTES) keeps well below this). A read returns
+/// what the socket holds, so a slow feed still gets small batches at once; a fast one is
+/// read in large batches, fewer wake-ups per frame downstream (as the replay's chunks).
+const READ_BYTES: usize = 256 * 1024;
 
 /// Nominal frame rate for untimed AVR when the config gives none: a busy receiver's order of
 /// magnitude. It only spaces `*hex;` frames in feed time; timed formats ignore it.

@@ -18,8 +18,39 @@ pub const WGS84_E2: f64 = WGS84_F * (2.0 - WGS84_F);
 /// X = (N + h) cos φ cos λ, Y = (N + h) cos φ sin λ, Z = (N(1 − e²) + h) sin φ,
 /// N = a / sqrt(1 − e² sin² φ).
 pub fn geodetic_to_ecef(lat_deg: f64, lon_deg: f64, h_m: f64) -> Vector3<f64> {
-    let (sin_lat, cos_lat) = lat_deg.to_radians().sin_cos();
-    let (sin_lon, cos_lon) = lon_deg.to_radians().sin_cos();
+    ecef_of(&Trig::of(lat_deg, lon_deg), h_m)
+}
+
+/// Sines and cosines of a latitude and a longitude, computed once for the position and the
+/// axes at that position.
+struct Trig {
+    sin_lat: f64,
+    cos_lat: f64,
+    sin_lon: f64,
+    cos_lon: f64,
+}
+
+impl Trig {
+    fn of(lat_deg: f64, lon_deg: f64) -> Self {
+        let (sin_lat, cos_lat) = lat_deg.to_radians().sin_cos();
+        let (sin_lon, cos_lon) = lon_deg.to_radians().sin_cos();
+        Self {
+            sin_lat,
+            cos_lat,
+            sin_lon,
+            cos_lon,
+        }
+    }
+}
+
+/// [`geodetic_to_ecef`] from the point's [`Trig`].
+fn ecef_of(trig: &Trig, h_m: f64) -> Vector3<f64> {
+    let Trig {
+        sin_lat,
+        cos_lat,
+        sin_lon,
+        cos_lon,
+    } = *trig;
     let n = WGS84_A_M / (1.0 - WGS84_E2 * sin_lat * sin_lat).sqrt();
     Vector3::new(
         (n + h_m) * cos_lat * cos_lon,
@@ -55,8 +86,17 @@ pub fn ecef_to_geodetic(ecef: &Vector3<f64>) -> (f64, f64, f64) {
 
 /// Rotation from ECEF axes to the ENU axes at (lat, lon): rows are east, north, up.
 fn ecef_to_enu_rotation(lat_deg: f64, lon_deg: f64) -> Matrix3<f64> {
-    let (sin_lat, cos_lat) = lat_deg.to_radians().sin_cos();
-    let (sin_lon, cos_lon) = lon_deg.to_radians().sin_cos();
+    enu_rotation_of(&Trig::of(lat_deg, lon_deg))
+}
+
+/// [`ecef_to_enu_rotation`] from the point's [`Trig`].
+fn enu_rotation_of(trig: &Trig) -> Matrix3<f64> {
+    let Trig {
+        sin_lat,
+        cos_lat,
+        sin_lon,
+        cos_lon,
+    } = *trig;
     Matrix3::new(
         -sin_lon,
         cos_lon,
@@ -102,6 +142,20 @@ impl LocalFrame {
     /// A point of this frame back to latitude, longitude (degrees) and height (m).
     pub fn to_geodetic(&self, enu: &Vector3<f64>) -> (f64, f64, f64) {
         ecef_to_geodetic(&(self.origin_ecef + self.rotation.transpose() * enu))
+    }
+
+    /// [`LocalFrame::to_enu`] and [`LocalFrame::rotation_from_local`] of the same point, with
+    /// its sines and cosines computed once (the same numbers as the two calls).
+    pub fn to_enu_with_rotation(
+        &self,
+        lat_deg: f64,
+        lon_deg: f64,
+        h_m: f64,
+    ) -> (Vector3<f64>, Matrix3<f64>) {
+        let trig = Trig::of(lat_deg, lon_deg);
+        let enu = self.rotation * (ecef_of(&trig, h_m) - self.origin_ecef);
+        let rotation = self.rotation * enu_rotation_of(&trig).transpose();
+        (enu, rotation)
     }
 
     /// Rotation taking a vector expressed in the local ENU axes at (lat, lon) into this
@@ -255,6 +309,20 @@ mod tests {
         );
         assert!((enu.y - 100_000.0).abs() < 50.0);
         assert!(enu.x.abs() < 1e-6);
+    }
+
+    #[test]
+    fn enu_with_rotation_is_the_two_calls() {
+        let f = LocalFrame::new(51.47, -0.46, 0.0);
+        for (lat, lon, h) in [
+            (52.3, 1.2, 11_000.0),
+            (49.0, -3.9, 300.0),
+            (51.47, -0.46, 0.0),
+        ] {
+            let (enu, r) = f.to_enu_with_rotation(lat, lon, h);
+            assert_eq!(enu, f.to_enu(lat, lon, h));
+            assert_eq!(r, f.rotation_from_local(lat, lon));
+        }
     }
 
     #[test]

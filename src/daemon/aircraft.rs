@@ -413,13 +413,12 @@ pub async fn run_task(
         };
         ctx.stats.dequeued_for_aircraft(batch.msgs.len());
         for d in &batch.msgs {
-            if aircraft.handle(d, &mut counts) {
-                if ctx.updates.is_some() {
-                    if let Some(s) = aircraft.snapshot() {
-                        // Serialising a plain struct of numbers and strings cannot fail.
-                        if serde_json::to_writer(&mut lines, &s).is_ok() {
-                            lines.push(b'\n');
-                        }
+            let updated = aircraft.handle(d, &mut counts);
+            if updated && ctx.updates.is_some() {
+                if let Some(s) = aircraft.snapshot() {
+                    // Serialising a plain struct of numbers and strings cannot fail.
+                    if serde_json::to_writer(&mut lines, &s).is_ok() {
+                        lines.push(b'\n');
                     }
                 }
             }

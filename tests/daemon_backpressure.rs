@@ -84,21 +84,28 @@ async fn serve_once(data: Vec<u8>) -> (std::net::SocketAddr, tokio::task::JoinHa
     (addr, task)
 }
 
-/// Waits until `frames` frames were routed and every queue is empty.
-async fn wait_drained(d: &TestDaemon, frames: u64) -> serde_json::Value {
+/// Waits until `frames` frames were routed and every queue is empty. Returns the stats and
+/// the largest ingest lag `/healthz` reported as `degraded` on the way (0 if never).
+async fn wait_drained(d: &TestDaemon, frames: u64) -> (serde_json::Value, f64) {
     let deadline = tokio::time::Instant::now() + Duration::from_secs(120);
+    let mut degraded_lag_s: f64 = 0.0;
     loop {
+        let (code, h) = get_json(d.addr, "/healthz").await;
+        if code == 503 {
+            assert_eq!(h["status"], "degraded", "{h}");
+            degraded_lag_s = degraded_lag_s.max(h["ingest_lag_s"].as_f64().unwrap());
+        }
         let (_, s) = get_json(d.addr, "/api/v1/stats").await;
         if s["frames"] == frames && s["queued_frames"] == 0 && s["queued_batches"] == 0 {
             // One more look: the last batches may still be in a task's hands.
             tokio::time::sleep(Duration::from_millis(200)).await;
             let (_, s2) = get_json(d.addr, "/api/v1/stats").await;
             if s2["track_updates"] == s["track_updates"] {
-                return s2;
+                return (s2, degraded_lag_s);
             }
         }
         assert!(tokio::time::Instant::now() < deadline, "stuck: {s}");
-        tokio::time::sleep(Duration::from_millis(50)).await;
+        tokio::time::sleep(Duration::from_millis(20)).await;
     }
 }
 
@@ -141,9 +148,15 @@ async fn a_feed_faster_than_the_pipeline_loses_nothing() {
     let (addr, sender) = serve_once(data).await;
     let mut config = slow_config();
     assert_eq!(config.pipeline.overload, Overload::Backpressure);
+    // Degraded as soon as the backlog is 20 ms old.
+    config.pipeline.max_lag_s = 0.02;
     let source = live(&mut config, addr);
     let d = TestDaemon::start(config, source, None).await;
-    let s = wait_drained(&d, total).await;
+    let (s, degraded_lag_s) = wait_drained(&d, total).await;
+    assert!(degraded_lag_s > 0.02, "never degraded: {s}");
+    // Caught up: healthy again, no lag.
+    let (code, h) = get_json(d.addr, "/healthz").await;
+    assert_eq!((code, h["ingest_lag_s"].as_f64()), (200, Some(0.0)), "{h}");
     assert_eq!(s["channel_drops"], 0, "{s}");
     assert_eq!(s["channel_dropped_messages"], 0, "{s}");
     assert_eq!(s["feeds"][0]["frames"], total, "{s}");
@@ -182,7 +195,7 @@ async fn the_drop_policy_counts_exactly_what_it_sheds() {
     config.pipeline.overload = Overload::Drop;
     let source = live(&mut config, addr);
     let d = TestDaemon::start(config, source, None).await;
-    let s = wait_drained(&d, total).await;
+    let (s, _) = wait_drained(&d, total).await;
     let dropped = s["channel_dropped_messages"].as_u64().unwrap();
     assert!(dropped > 0, "the stream should outrun the IMM: {s}");
     assert!(s["channel_drops"].as_u64().unwrap() > 0);

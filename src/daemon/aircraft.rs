@@ -388,8 +388,6 @@ pub struct AircraftBatch {
 /// wall-clock silence, or the stream ended: the remaining batches are drained first and the
 /// last snapshot stays published) or on shutdown.
 ///
-/// Publishing reuses the previous snapshot's allocation when no reader holds it any more,
-/// so a steady stream allocates nothing per batch.
 pub async fn run_task(
     mut aircraft: Aircraft,
     mut rx: mpsc::Receiver<AircraftBatch>,
@@ -398,7 +396,6 @@ pub async fn run_task(
 ) {
     let icao = aircraft.icao;
     let mut lines: Vec<u8> = Vec::new();
-    let mut spare: Option<Arc<Published>> = None;
     let mut counts = Counts::default();
     let cancelled = ctx.shutdown.cancelled();
     tokio::pin!(cancelled);
@@ -426,7 +423,7 @@ pub async fn run_task(
         counts.flush(&ctx.stats);
         // Once per batch, whether or not the tracker moved: the message counts and the
         // identity fields are part of the snapshot too.
-        publish(&aircraft, &slot, &mut spare, &ctx.prediction_horizons_s);
+        publish(&aircraft, &slot, &ctx.prediction_horizons_s);
         ctx.stats.observe_latency(batch.arrived.elapsed());
         ctx.budget.add_permits(batch.permits as usize);
         if let Some(tx) = &ctx.updates {
@@ -438,24 +435,11 @@ pub async fn run_task(
     ctx.stats.tracks_active.dec();
 }
 
-/// Swaps the aircraft's new snapshot into its slot, built in `spare` when no reader still
-/// holds that one (the previous-but-one snapshot), else in a new allocation.
-fn publish(
-    aircraft: &Aircraft,
-    slot: &Slot,
-    spare: &mut Option<Arc<Published>>,
-    horizons_s: &[f64],
-) {
-    let reused = spare
-        .as_mut()
-        .and_then(Arc::get_mut)
-        .map(|p| aircraft.publish_into(p, horizons_s));
-    let next = match reused {
-        Some(true) => spare.take(),
-        Some(false) => return,
-        None => aircraft.published(horizons_s).map(Arc::new),
-    };
-    if next.is_some() {
-        *spare = slot.swap(next);
+/// Swaps the aircraft's new snapshot into its slot. The old one is freed when its last
+/// reader lets go. (Recycling it saved one allocation a batch but kept a second snapshot
+/// alive per aircraft, 650 bytes each: memory per aircraft is the scarcer resource.)
+fn publish(aircraft: &Aircraft, slot: &Slot, horizons_s: &[f64]) {
+    if let Some(p) = aircraft.published(horizons_s) {
+        slot.store(Some(Arc::new(p)));
     }
 }

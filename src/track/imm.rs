@@ -182,6 +182,39 @@ fn log_sum_exp(values: &[f64]) -> f64 {
     max + values.iter().map(|v| (v - max).exp()).sum::<f64>().ln()
 }
 
+/// Σᵢ wᵢ [Pᵢ + (x̂ᵢ − x̂)(x̂ᵢ − x̂)ᵀ] over the terms with wᵢ > 0: the mixed covariance
+/// P⁰ⱼ (Bar-Shalom et al. 2001, eq. 11.6.6-11) and the combined one (eq. 11.6.6-20).
+///
+/// Every Pᵢ the estimator holds is exactly symmetric (each comes out of a symmetrisation:
+/// [`kalman::symmetrise`], a Kalman update, [`Prediction::covariance`]), and so is
+/// (x̂ᵢ − x̂)(x̂ᵢ − x̂)ᵀ (dᵣ d꜀ = d꜀ dᵣ in floating point): the sum is accumulated over the
+/// upper triangle alone, term by term in the order the full sum took, and mirrored. Same
+/// result, 45 entries instead of 81.
+fn spread_sum(
+    x: &[State9; N_MODES],
+    p: &[Matrix9; N_MODES],
+    w: &[f64; N_MODES],
+    mean: &State9,
+) -> Matrix9 {
+    let mut out = Matrix9::zeros();
+    for ((xi, pi), &wi) in x.iter().zip(p).zip(w) {
+        if wi > 0.0 {
+            let d = xi - mean;
+            for c in 0..9 {
+                for r in 0..=c {
+                    out[(r, c)] += (pi[(r, c)] + d[r] * d[c]) * wi;
+                }
+            }
+        }
+    }
+    for c in 0..9 {
+        for r in 0..c {
+            out[(c, r)] = out[(r, c)];
+        }
+    }
+    out
+}
+
 /// The IMM estimator: one state and covariance per mode and the mode probabilities.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Imm {
@@ -325,15 +358,31 @@ impl Imm {
     pub fn transition(&self, dt_s: f64) -> [[f64; N_MODES]; N_MODES] {
         let mut pi = [[0.0; N_MODES]; N_MODES];
         let enabled = &self.params.enabled;
+        // exp(−dt/τ) once per distinct τ (the defaults have two: CV's and the manoeuvres').
+        let mut stays: [(f64, f64); N_MODES] = [(f64::NAN, 0.0); N_MODES];
+        let mut n_stays = 0;
         for (i, row) in pi.iter_mut().enumerate() {
             if !enabled[i] {
                 continue;
             }
             let tau = self.params.mean_sojourn_s[i];
-            let stay = if tau > 0.0 {
-                (-dt_s.max(0.0) / tau).exp()
-            } else {
-                0.0
+            let known = stays
+                .get(..n_stays)
+                .and_then(|s| s.iter().find(|(t, _)| *t == tau));
+            let stay = match known {
+                Some(&(_, stay)) => stay,
+                None => {
+                    let stay = if tau > 0.0 {
+                        (-dt_s.max(0.0) / tau).exp()
+                    } else {
+                        0.0
+                    };
+                    if let Some(slot) = stays.get_mut(n_stays) {
+                        *slot = (tau, stay);
+                        n_stays += 1;
+                    }
+                    stay
+                }
             };
             let weights = &self.params.switch_weights[i];
             let total: f64 = (0..N_MODES)
@@ -388,13 +437,7 @@ impl Imm {
                     x0 += xi * wi;
                 }
             }
-            let mut p0 = Matrix9::zeros();
-            for ((xi, pi_cov), wi) in self.x.iter().zip(&self.p).zip(w) {
-                if wi > 0.0 {
-                    let d = xi - x0;
-                    p0 += (pi_cov + d * d.transpose()) * wi;
-                }
-            }
+            let p0 = spread_sum(&self.x, &self.p, &w, &x0);
             // Mode-matched, divergence-guarded filtering.
             let pred = Prediction::<9>::new(self.models[j].as_dyn(), &x0, &p0, dt_s);
             match guarded_update(&pred, obs, &self.params.divergence, self.divergence_runs[j]) {
@@ -404,9 +447,8 @@ impl Imm {
                     p_new[j] = g.p;
                     diverged[j] = g.diverged;
                     runs[j] = g.run;
-                    corrections[j] = (pred.covariance(g.adapt) - g.p)
-                        .fixed_view::<3, 3>(VEL, VEL)
-                        .into_owned();
+                    corrections[j] =
+                        pred.covariance_block3(g.adapt, VEL) - g.p.fixed_view::<3, 3>(VEL, VEL);
                     if g.log_likelihood.is_finite() {
                         log_post[j] = c_bar[j].ln() + g.log_likelihood;
                     }
@@ -451,14 +493,9 @@ impl Imm {
     /// The combined estimate x̂ = Σ μⱼ x̂ⱼ and P = Σ μⱼ [Pⱼ + (x̂ⱼ − x̂)(x̂ⱼ − x̂)ᵀ].
     pub fn combined(&self) -> (State9, Matrix9) {
         let x = self.combined_state();
-        let mut p = Matrix9::zeros();
-        for ((xj, pj), mu) in self.x.iter().zip(self.p.iter()).zip(self.mu) {
-            if mu > 0.0 {
-                let d = xj - x;
-                p += (pj + d * d.transpose()) * mu;
-            }
-        }
-        (x, kalman::symmetrise(&p))
+        // Σ μⱼ [Pⱼ + dⱼ dⱼᵀ] is symmetric by construction (each Pⱼ is): symmetrising it
+        // changes nothing.
+        (x, spread_sum(&self.x, &self.p, &self.mu, &x))
     }
 
     /// The combined estimate x̂ = Σ μⱼ x̂ⱼ alone (no covariance: a tenth of the work).

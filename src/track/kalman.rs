@@ -21,9 +21,16 @@ pub trait MotionModel<const N: usize> {
     /// Process noise covariance accumulated over `dt_s` seconds.
     fn q(&self, dt_s: f64) -> SMatrix<f64, N, N>;
 
+    /// F(dt) and Q(dt) together: one evaluation of what they share (the CT model's
+    /// trigonometric coefficients, the per-axis powers of dt). Must equal `(f(dt), q(dt))`.
+    fn fq(&self, dt_s: f64) -> (SMatrix<f64, N, N>, SMatrix<f64, N, N>) {
+        (self.f(dt_s), self.q(dt_s))
+    }
+
     /// One prediction step with this model (see [`predict`]).
     fn predict(&self, x: &mut SVector<f64, N>, p: &mut SMatrix<f64, N, N>, dt_s: f64) {
-        predict(x, p, &self.f(dt_s), &self.q(dt_s));
+        let (f, q) = self.fq(dt_s);
+        predict(x, p, &f, &q);
     }
 }
 
@@ -428,7 +435,8 @@ mod tests {
                 0.0
             }
         });
-        let a = SMatrix::<f64, N, N>::from_diagonal(&d) * (l * l.transpose())
+        let a = SMatrix::<f64, N, N>::from_diagonal(&d)
+            * (l * l.transpose())
             * SMatrix::<f64, N, N>::from_diagonal(&d)
             + SMatrix::<f64, N, N>::from_diagonal(&d.component_mul(&d)) * 1e-3;
         symmetrise(&a)
@@ -530,7 +538,12 @@ mod tests {
         h[(0, 1)] = 2.0;
         assert_eq!(selection(&h), None);
         assert!(!is_positive_definite(&Matrix2::new(1.0, 2.0, 2.0, 1.0)));
-        assert!(!is_positive_definite(&Matrix2::new(f64::NAN, 0.0, 0.0, 1.0)));
+        assert!(!is_positive_definite(&Matrix2::new(
+            f64::NAN,
+            0.0,
+            0.0,
+            1.0
+        )));
         assert!(is_positive_definite(&Matrix2::new(2.0, 1.0, 1.0, 2.0)));
         // A malformed selection is refused, not a panic.
         let (mut x, mut p) = (SVector::<f64, 3>::zeros(), SMatrix::<f64, 3, 3>::identity());

@@ -275,59 +275,55 @@ pub fn update_selected<const N: usize, const M: usize>(
     let k = chol.solve(&hp).transpose();
     let x_new = *x + k * residual;
 
-    // Row i of I − KH: (column, coefficient) pairs, columns ascending: −K[i, m] at sel[m],
-    // and 1 (less K[i, m] when sel[m] = i) at i.
-    let mut cols = [[0usize; N]; N];
-    let mut coef = [[0.0f64; N]; N];
-    let mut len = [0usize; N];
-    for i in 0..N {
-        let mut n = 0;
-        let mut diagonal_done = false;
-        for (m, &c) in sel.iter().enumerate() {
-            if !diagonal_done && i < c {
-                cols[i][n] = i;
-                coef[i][n] = 1.0;
-                n += 1;
-                diagonal_done = true;
-            }
-            cols[i][n] = c;
-            coef[i][n] = if c == i {
-                diagonal_done = true;
-                1.0 - k[(i, m)]
-            } else {
-                0.0 - k[(i, m)]
-            };
-            n += 1;
-        }
-        if !diagonal_done {
-            cols[i][n] = i;
-            coef[i][n] = 1.0;
-            n += 1;
-        }
-        len[i] = n;
+    // I − KH: column sel[m] is e_sel[m] − K[:, m] (the columns of G below), every other
+    // column k is e_k. `slot[k]` = m when sel[m] = k, M otherwise.
+    let mut slot = [M; N];
+    for (m, &c) in sel.iter().enumerate() {
+        slot[c] = m;
     }
-    // A = (I − KH) P.
+    let g = SMatrix::<f64, N, M>::from_fn(|i, m| {
+        if i == sel[m] {
+            1.0 - k[(i, m)]
+        } else {
+            0.0 - k[(i, m)]
+        }
+    });
+    // A = (I − KH) P = P − K P[sel, :], column by column: A[:, j] = Σₖ (I − KH)[:, k] P[k, j]
+    // with k ascending, the order of the dense product.
     let mut a = SMatrix::<f64, N, N>::zeros();
-    for i in 0..N {
-        let (ci, wi) = (&cols[i][..len[i]], &coef[i][..len[i]]);
-        for j in 0..N {
-            let mut acc = 0.0;
-            for (&c, &w) in ci.iter().zip(wi) {
-                acc += w * p[(c, j)];
+    for j in 0..N {
+        let mut col = [0.0; N];
+        for (kk, &m) in slot.iter().enumerate() {
+            let pkj = p[(kk, j)];
+            if m < M {
+                for (i, c) in col.iter_mut().enumerate() {
+                    *c += g[(i, m)] * pkj;
+                }
+            } else {
+                col[kk] += pkj;
             }
-            a[(i, j)] = acc;
         }
+        a.column_mut(j).copy_from_slice(&col);
     }
-    // A (I − KH)ᵀ + K R Kᵀ.
+    // A (I − KH)ᵀ = A − A[:, sel] Kᵀ, column j = Σₖ A[:, k] (I − KH)[j, k] over the non-zeros
+    // of row j (the columns sel, and j), then + K R Kᵀ.
     let mut p_new = k * r * k.transpose();
     for j in 0..N {
-        let (cj, wj) = (&cols[j][..len[j]], &coef[j][..len[j]]);
-        for i in 0..N {
-            let mut acc = 0.0;
-            for (&c, &w) in cj.iter().zip(wj) {
-                acc += a[(i, c)] * w;
+        let mut col = [0.0; N];
+        for (kk, &m) in slot.iter().enumerate() {
+            if m < M {
+                let w = g[(j, m)];
+                for (i, c) in col.iter_mut().enumerate() {
+                    *c += a[(i, kk)] * w;
+                }
+            } else if kk == j {
+                for (i, c) in col.iter_mut().enumerate() {
+                    *c += a[(i, kk)];
+                }
             }
-            p_new[(i, j)] += acc;
+        }
+        for (i, c) in col.iter().enumerate() {
+            p_new[(i, j)] += c;
         }
     }
     let p_new = symmetrise(&p_new);

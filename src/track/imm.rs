@@ -185,34 +185,29 @@ fn log_sum_exp(values: &[f64]) -> f64 {
 /// Σᵢ wᵢ [Pᵢ + (x̂ᵢ − x̂)(x̂ᵢ − x̂)ᵀ] over the terms with wᵢ > 0: the mixed covariance
 /// P⁰ⱼ (Bar-Shalom et al. 2001, eq. 11.6.6-11) and the combined one (eq. 11.6.6-20).
 ///
-/// Every Pᵢ the estimator holds is exactly symmetric (each comes out of a symmetrisation:
-/// [`kalman::symmetrise`], a Kalman update, [`Prediction::covariance`]), and so is
-/// (x̂ᵢ − x̂)(x̂ᵢ − x̂)ᵀ (dᵣ d꜀ = d꜀ dᵣ in floating point): the sum is accumulated over the
-/// upper triangle alone, term by term in the order the full sum took, and mirrored. Same
-/// result, 45 entries instead of 81.
+/// In place, column by column over fixed-size arrays (no temporary 9x9 matrices for the
+/// outer product and the scaled sum): entry by entry the same operations as
+/// `out += (Pᵢ + d dᵀ) wᵢ`. Every Pᵢ the estimator holds is exactly symmetric (each comes
+/// out of a symmetrisation), and so is d dᵀ, so the sum is too.
 fn spread_sum(
     x: &[State9; N_MODES],
     p: &[Matrix9; N_MODES],
     w: &[f64; N_MODES],
     mean: &State9,
 ) -> Matrix9 {
-    let mut out = Matrix9::zeros();
+    let mut out = [[0.0f64; 9]; 9];
     for ((xi, pi), &wi) in x.iter().zip(p).zip(w) {
         if wi > 0.0 {
-            let d = xi - mean;
-            for c in 0..9 {
-                for r in 0..=c {
-                    out[(r, c)] += (pi[(r, c)] + d[r] * d[c]) * wi;
+            let d: [f64; 9] = (xi - mean).into();
+            let pi: &[[f64; 9]; 9] = &pi.data.0;
+            for ((oc, pc), dc) in out.iter_mut().zip(pi).zip(d) {
+                for ((o, pv), dr) in oc.iter_mut().zip(pc).zip(d) {
+                    *o += (pv + dr * dc) * wi;
                 }
             }
         }
     }
-    for c in 0..9 {
-        for r in 0..c {
-            out[(c, r)] = out[(r, c)];
-        }
-    }
-    out
+    Matrix9::from(out)
 }
 
 /// The IMM estimator: one state and covariance per mode and the mode probabilities.

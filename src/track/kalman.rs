@@ -97,41 +97,88 @@ impl<const N: usize> RowSupport<N> {
     }
 }
 
-/// F P Fᵀ for a sparse F, bit for bit what the dense product `f * p * f.transpose()` gives.
-///
-/// nalgebra evaluates each entry of a small fixed-size product as Σₖ aᵢₖ bₖⱼ accumulated with
-/// k ascending; a term with a zero factor adds an exact zero (P is finite here). Summing only
-/// the non-zero terms, k still ascending, therefore gives the same floating-point result with
-/// nnz(F)·N instead of N³ multiplications per product (tested bit-equal).
-pub fn sparse_fpf<const N: usize>(
+/// By row, a superset of the columns where the F of every motion model of
+/// [`super::models`] (9-state) can be non-zero, ascending: per axis position ← position,
+/// velocity (both horizontal velocities for the CT model) and acceleration; velocity ←
+/// velocity (both horizontal for CT) and acceleration; acceleration ← itself (or nothing
+/// when reset). 22 entries of 81.
+const SUPPORT9: [&[usize]; 9] = [
+    &[0, 3, 4, 6],
+    &[1, 3, 4, 7],
+    &[2, 5, 8],
+    &[3, 4, 6],
+    &[3, 4, 7],
+    &[5, 8],
+    &[6],
+    &[7],
+    &[8],
+];
+
+/// [`SUPPORT9`] for the 6-state constant-velocity models.
+const SUPPORT6: [&[usize]; 6] = [&[0, 3, 4], &[1, 3, 4], &[2, 5], &[3, 4], &[3, 4], &[5]];
+
+/// Whether every non-zero of `f` lies in `support` (one row slice per row).
+fn within_support<const N: usize>(f: &SMatrix<f64, N, N>, support: &[&[usize]]) -> bool {
+    support.len() == N
+        && support.iter().enumerate().all(|(i, cols)| {
+            (0..N).fold(true, |ok, k| ok & (f[(i, k)] == 0.0 || cols.contains(&k)))
+        })
+}
+
+/// F P Fᵀ summing, for each entry, the terms of the columns in `support` (ascending).
+#[inline(always)]
+fn fpf_on_support<const N: usize>(
     f: &SMatrix<f64, N, N>,
     p: &SMatrix<f64, N, N>,
+    support: &[&[usize]],
 ) -> SMatrix<f64, N, N> {
-    let support = RowSupport::of(f);
-    // G = F P.
+    // G = F P, column by column: G[i, j] = Σₖ F[i, k] P[k, j].
     let mut g = SMatrix::<f64, N, N>::zeros();
-    for i in 0..N {
-        for j in 0..N {
+    for j in 0..N {
+        for (i, cols) in support.iter().enumerate() {
             let mut acc = 0.0;
-            for &k in support.row(i) {
+            for &k in cols.iter() {
                 acc += f[(i, k)] * p[(k, j)];
             }
             g[(i, j)] = acc;
         }
     }
-    // G Fᵀ: entry (i, j) = Σₖ gᵢₖ fⱼₖ over row j of F.
+    // G Fᵀ: entry (i, j) = Σₖ G[i, k] F[j, k] over row j of F.
     let mut out = SMatrix::<f64, N, N>::zeros();
-    for j in 0..N {
-        let cols = support.row(j);
-        for i in 0..N {
-            let mut acc = 0.0;
-            for &k in cols {
-                acc += g[(i, k)] * f[(j, k)];
+    for (j, cols) in support.iter().enumerate() {
+        let mut col = [0.0; N];
+        for &k in cols.iter() {
+            let fjk = f[(j, k)];
+            for (i, c) in col.iter_mut().enumerate() {
+                *c += g[(i, k)] * fjk;
             }
-            out[(i, j)] = acc;
         }
+        out.column_mut(j).copy_from_slice(&col);
     }
     out
+}
+
+/// F P Fᵀ for a sparse F, bit for bit what the dense product `f * p * f.transpose()` gives.
+///
+/// nalgebra evaluates each entry of a small fixed-size product as Σₖ aᵢₖ bₖⱼ accumulated with
+/// k ascending; a term with a zero factor adds an exact zero (P is finite here). Summing only
+/// the terms of a superset of F's non-zeros, k still ascending, therefore gives the same
+/// floating-point result with nnz·N instead of N³ multiplications per product (tested
+/// bit-equal): the motion models' fixed pattern ([`SUPPORT9`], [`SUPPORT6`]) when F fits it,
+/// else the non-zeros found in F.
+pub fn sparse_fpf<const N: usize>(
+    f: &SMatrix<f64, N, N>,
+    p: &SMatrix<f64, N, N>,
+) -> SMatrix<f64, N, N> {
+    if N == 9 && within_support(f, &SUPPORT9) {
+        return fpf_on_support(f, p, &SUPPORT9);
+    }
+    if N == 6 && within_support(f, &SUPPORT6) {
+        return fpf_on_support(f, p, &SUPPORT6);
+    }
+    let support = RowSupport::of(f);
+    let rows: [&[usize]; N] = std::array::from_fn(|i| support.row(i));
+    fpf_on_support(f, p, &rows)
 }
 
 /// F x for a sparse F, bit for bit `f * x` (see [`sparse_fpf`]).
@@ -189,16 +236,56 @@ fn check_finite<const N: usize, const M: usize>(
     z: &SVector<f64, M>,
     r: &SMatrix<f64, M, M>,
 ) -> Result<(), TrackError> {
-    if !z.iter().all(|v| v.is_finite()) {
+    if !all_finite(z.as_slice()) {
         return Err(TrackError::NonFinite("measurement"));
     }
-    if !r.iter().all(|v| v.is_finite()) {
+    if !all_finite(r.as_slice()) {
         return Err(TrackError::NonFinite("measurement covariance"));
     }
-    if !x.iter().chain(p.iter()).all(|v| v.is_finite()) {
+    if !all_finite(x.as_slice()) || !all_finite(p.as_slice()) {
         return Err(TrackError::NonFinite("state"));
     }
     Ok(())
+}
+
+/// Every value finite, without a branch per value (the check runs on every update).
+fn all_finite(values: &[f64]) -> bool {
+    values.iter().fold(true, |ok, v| ok & v.is_finite())
+}
+
+/// Solves L Lᵀ X = B in place for the Cholesky factor `l` (lower triangle read), exactly as
+/// nalgebra's `Cholesky::solve` does it (the same operations in the same order, so the same
+/// result: forward substitution by column updates, back substitution by dot products summed
+/// in ascending order), without its generic views.
+fn cholesky_solve_mut<const M: usize, const C: usize>(
+    l: &SMatrix<f64, M, M>,
+    b: &mut SMatrix<f64, M, C>,
+) {
+    for c in 0..C {
+        let mut y = [0.0; M];
+        for (i, yi) in y.iter_mut().enumerate() {
+            *yi = b[(i, c)];
+        }
+        // L y = b.
+        for i in 0..M {
+            let coeff = y[i] / l[(i, i)];
+            y[i] = coeff;
+            for k in i + 1..M {
+                y[k] += -coeff * l[(k, i)];
+            }
+        }
+        // Lᵀ x = y.
+        for i in (0..M).rev() {
+            let mut dot = 0.0;
+            for k in i + 1..M {
+                dot += l[(k, i)] * y[k];
+            }
+            y[i] = (y[i] - dot) / l[(i, i)];
+        }
+        for (i, yi) in y.iter().enumerate() {
+            b[(i, c)] = *yi;
+        }
+    }
 }
 
 /// `Some(sel)` when H selects state components: row m is the unit row e_{sel[m]}ᵀ, with
@@ -272,7 +359,9 @@ pub fn update_selected<const N: usize, const M: usize>(
     let s = symmetrise(&s);
     let chol = Cholesky::new(s).ok_or(TrackError::NotPositiveDefinite)?;
     // S Kᵀ = H P  =>  Kᵀ = S⁻¹ H P (S and P symmetric).
-    let k = chol.solve(&hp).transpose();
+    let mut kt = hp;
+    cholesky_solve_mut(chol.l_dirty(), &mut kt);
+    let k = kt.transpose();
     let x_new = *x + k * residual;
 
     // I − KH: column sel[m] is e_sel[m] − K[:, m] (the columns of G below), every other
@@ -506,6 +595,15 @@ mod tests {
                 prop_assert_eq!(sparse_fpf(&f, &p), f * p * f.transpose());
                 prop_assert_eq!(sparse_fx(&f, &x), f * x);
             }
+            // Any other sparsity (found at run time), and an F outside the models' pattern.
+            let mut f5 = SMatrix::<f64, 5, 5>::from_fn(|_, _| rng.gen_range(-2.0..2.0));
+            f5[(1, 3)] = 0.0;
+            f5[(4, 0)] = 0.0;
+            let p5 = random_spd::<5>(&mut rng, 2.0);
+            prop_assert_eq!(sparse_fpf(&f5, &p5), f5 * p5 * f5.transpose());
+            let mut f9 = models[2].f(dt);
+            f9[(8, 0)] = 0.5;
+            prop_assert_eq!(sparse_fpf(&f9, &p), f9 * p * f9.transpose());
             let p6 = random_spd::<6>(&mut rng, 3.0);
             let f6 = MotionModel::<6>::f(&Cv::default(), dt);
             prop_assert_eq!(sparse_fpf(&f6, &p6), f6 * p6 * f6.transpose());

@@ -139,6 +139,19 @@ fn imm_filtering(c: &mut Criterion) {
             out
         })
     });
+    let ct = models[2];
+    g.bench_function("ct-fpf-dense", |b| {
+        b.iter(|| {
+            let (f, q) = ct.fq(black_box(0.5));
+            f * p * f.transpose() + q
+        })
+    });
+    g.bench_function("ct-fpf-sparse", |b| {
+        b.iter(|| {
+            let (f, q) = ct.fq(black_box(0.5));
+            kalman::sparse_fpf(&f, &p) + q
+        })
+    });
     let mut imm = Imm::new(ImmParams::default());
     imm.reset(&x, &p, None);
     // Spread the modes apart as a turn does.

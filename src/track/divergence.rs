@@ -103,7 +103,7 @@ impl<const N: usize> Prediction<N> {
     ) -> Self {
         let (f, q) = model.fq(dt_s);
         Self {
-            x: kalman::sparse_fx(&f, x),
+            x: f * x,
             fpf: kalman::sparse_fpf(&f, p),
             q,
         }
@@ -274,6 +274,7 @@ pub fn guarded_update<const N: usize>(
 
 /// [`guarded_update`] for an M-vector z = x[sel] + v whose 3-blocks sit at the state offsets
 /// `blocks`; both Kalman updates are the specialised [`kalman::update_selected`].
+#[inline(always)]
 fn guarded_update_m<const N: usize, const M: usize>(
     pred: &Prediction<N>,
     z: &SVector<f64, M>,

@@ -203,7 +203,7 @@ pub fn is_positive_definite<const N: usize>(a: &SMatrix<f64, N, N>) -> bool {
             l[(j, k)] = ljk;
             djj -= ljk * v;
         }
-        if !(djj > 0.0) || !djj.is_finite() {
+        if djj.is_nan() || djj <= 0.0 || djj.is_infinite() {
             return false;
         }
         d[j] = djj;

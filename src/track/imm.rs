@@ -188,7 +188,10 @@ fn log_sum_exp(values: &[f64]) -> f64 {
 /// In place, column by column over fixed-size arrays (no temporary 9x9 matrices for the
 /// outer product and the scaled sum): entry by entry the same operations as
 /// `out += (Pᵢ + d dᵀ) wᵢ`. Every Pᵢ the estimator holds is exactly symmetric (each comes
-/// out of a symmetrisation), and so is d dᵀ, so the sum is too.
+/// out of a symmetrisation: [`kalman::symmetrise`], a Kalman update,
+/// [`Prediction::covariance`]), and so is d dᵀ (dᵣ d꜀ = d꜀ dᵣ in floating point), so the
+/// sum is accumulated over the upper triangle alone and mirrored: the same result with 45
+/// entries instead of 81.
 fn spread_sum(
     x: &[State9; N_MODES],
     p: &[Matrix9; N_MODES],
@@ -200,11 +203,17 @@ fn spread_sum(
         if wi > 0.0 {
             let d: [f64; 9] = (xi - mean).into();
             let pi: &[[f64; 9]; 9] = &pi.data.0;
-            for ((oc, pc), dc) in out.iter_mut().zip(pi).zip(d) {
-                for ((o, pv), dr) in oc.iter_mut().zip(pc).zip(d) {
+            // Upper triangle (rows 0..=c of column c) only.
+            for (c, ((oc, pc), dc)) in out.iter_mut().zip(pi).zip(d).enumerate() {
+                for ((o, pv), dr) in oc.iter_mut().zip(pc).zip(d).take(c + 1) {
                     *o += (pv + dr * dc) * wi;
                 }
             }
+        }
+    }
+    for c in 0..9 {
+        for r in 0..c {
+            out[r][c] = out[c][r];
         }
     }
     Matrix9::from(out)
@@ -914,6 +923,34 @@ impl Tracker for ImmTracker {
 mod tests {
     use super::*;
     use crate::track::UNMEASURED_VARIANCE;
+
+    /// The triangular in-place spread sum is bit for bit the full matrix sum it replaced
+    /// (for the exactly symmetric covariances the estimator holds).
+    #[test]
+    fn spread_sum_is_the_full_sum() {
+        use rand::rngs::StdRng;
+        use rand::{Rng, SeedableRng};
+        let mut rng = StdRng::seed_from_u64(17);
+        for _ in 0..200 {
+            let x: [State9; N_MODES] =
+                std::array::from_fn(|_| State9::from_fn(|_, _| rng.gen_range(-1e4..1e4)));
+            let p: [Matrix9; N_MODES] = std::array::from_fn(|_| {
+                let l = Matrix9::from_fn(|_, _| rng.gen_range(-10.0..10.0));
+                kalman::symmetrise(&(l * l.transpose()))
+            });
+            let mut w: [f64; N_MODES] = std::array::from_fn(|_| rng.gen_range(0.0..1.0));
+            w[rng.gen_range(0..N_MODES)] = 0.0;
+            let mean = State9::from_fn(|_, _| rng.gen_range(-1e4..1e4));
+            let mut full = Matrix9::zeros();
+            for ((xi, pi), wi) in x.iter().zip(&p).zip(w) {
+                if wi > 0.0 {
+                    let d = xi - mean;
+                    full += (pi + d * d.transpose()) * wi;
+                }
+            }
+            assert_eq!(spread_sum(&x, &p, &w, &mean), full);
+        }
+    }
 
     fn observed(value: Vector3<f64>, sigma: f64) -> Observed {
         Observed {

@@ -101,12 +101,25 @@ impl<const N: usize> Prediction<N> {
         p: &SMatrix<f64, N, N>,
         dt_s: f64,
     ) -> Self {
-        let f = model.f(dt_s);
+        let (f, q) = model.fq(dt_s);
         Self {
             x: f * x,
-            fpf: f * p * f.transpose(),
-            q: model.q(dt_s),
+            fpf: kalman::sparse_fpf(&f, p),
+            q,
         }
+    }
+
+    /// The block of rows and columns `offset..offset + 3` of [`Prediction::covariance`]
+    /// (`adapt`), without forming the rest: entry by entry the same arithmetic.
+    pub fn covariance_block3(&self, adapt: f64, offset: usize) -> nalgebra::Matrix3<f64> {
+        let entry = |i: usize, j: usize| {
+            let a = self.fpf.get((i, j)).copied().unwrap_or(0.0) * adapt
+                + self.q.get((i, j)).copied().unwrap_or(0.0);
+            let b = self.fpf.get((j, i)).copied().unwrap_or(0.0) * adapt
+                + self.q.get((j, i)).copied().unwrap_or(0.0);
+            (a + b) * 0.5
+        };
+        nalgebra::Matrix3::from_fn(|i, j| entry(offset + i, offset + j))
     }
 
     /// P(k+1|k) = Adapt·Φ P Φᵀ + Q (eq. 25; Adapt = 1 is the ordinary eq. 6), symmetrised.
@@ -156,15 +169,6 @@ pub struct Guarded<const N: usize> {
     pub run: u32,
     /// The Adapt applied (1 when none).
     pub adapt: f64,
-}
-
-/// `[0 .. I .. 0]`: picks the 3-vector at `offset` of an N-state.
-fn pick<const N: usize>(offset: usize) -> SMatrix<f64, 3, N> {
-    let mut h = SMatrix::<f64, 3, N>::zeros();
-    for i in 0..3 {
-        h[(i, offset + i)] = 1.0;
-    }
-    h
 }
 
 /// Components whose variance is below half of [`UNMEASURED_VARIANCE`] count as measured.
@@ -233,7 +237,7 @@ pub fn guarded_update<const N: usize>(
         Observation::Position(o) => guarded_update_m::<N, 3>(
             pred,
             &o.value,
-            &pick::<N>(0),
+            &kalman::block3(0),
             &o.cov,
             &[0],
             params,
@@ -242,7 +246,7 @@ pub fn guarded_update<const N: usize>(
         Observation::Velocity(o) => guarded_update_m::<N, 3>(
             pred,
             &o.value,
-            &pick::<N>(3),
+            &kalman::block3(3),
             &o.cov,
             &[3],
             params,
@@ -252,22 +256,29 @@ pub fn guarded_update<const N: usize>(
             let mut z = SVector::<f64, 6>::zeros();
             z.fixed_rows_mut::<3>(0).copy_from(&p.value);
             z.fixed_rows_mut::<3>(3).copy_from(&v.value);
-            let mut h = SMatrix::<f64, 6, N>::zeros();
-            h.fixed_rows_mut::<3>(0).copy_from(&pick::<N>(0));
-            h.fixed_rows_mut::<3>(3).copy_from(&pick::<N>(3));
             let mut r = SMatrix::<f64, 6, 6>::zeros();
             r.fixed_view_mut::<3, 3>(0, 0).copy_from(&p.cov);
             r.fixed_view_mut::<3, 3>(3, 3).copy_from(&v.cov);
-            guarded_update_m::<N, 6>(pred, &z, &h, &r, &[0, 3], params, previous_run)
+            guarded_update_m::<N, 6>(
+                pred,
+                &z,
+                &kalman::blocks6(0, 3),
+                &r,
+                &[0, 3],
+                params,
+                previous_run,
+            )
         }
     }
 }
 
-/// [`guarded_update`] for an M-vector z whose 3-blocks sit at the state offsets `blocks`.
+/// [`guarded_update`] for an M-vector z = x[sel] + v whose 3-blocks sit at the state offsets
+/// `blocks`; both Kalman updates are the specialised [`kalman::update_selected`].
+#[inline(always)]
 fn guarded_update_m<const N: usize, const M: usize>(
     pred: &Prediction<N>,
     z: &SVector<f64, M>,
-    h: &SMatrix<f64, M, N>,
+    sel: &[usize; M],
     r: &SMatrix<f64, M, M>,
     blocks: &[usize],
     params: &DivergenceParams,
@@ -275,7 +286,7 @@ fn guarded_update_m<const N: usize, const M: usize>(
 ) -> Result<Guarded<N>, TrackError> {
     let mut x = pred.x;
     let mut p = pred.covariance(1.0);
-    let inn = kalman::update(&mut x, &mut p, z, h, r)?;
+    let inn = kalman::update_selected(&mut x, &mut p, z, sel, r)?;
     let mut diverged = false;
     let mut adapt = 1.0_f64;
     for (b, &state_offset) in blocks.iter().enumerate() {
@@ -295,7 +306,7 @@ fn guarded_update_m<const N: usize, const M: usize>(
     if diverged && params.suppress && run >= params.confirm && adapt > 1.0 {
         let mut x2 = pred.x;
         let mut p2 = pred.covariance(adapt);
-        kalman::update(&mut x2, &mut p2, z, h, r)?;
+        kalman::update_selected(&mut x2, &mut p2, z, sel, r)?;
         x = x2;
         p = p2;
     } else {

@@ -296,9 +296,10 @@ impl HybridTracker {
                 self.cv_divergence_run = g.run;
                 if matches!(obs, Observation::Position(_)) {
                     // Only a report without a velocity may feed the gate a derived one.
-                    self.velocity_correction_cov = (pred.fpf * g.adapt + pred.q - g.p)
-                        .fixed_view::<3, 3>(3, 3)
-                        .into_owned();
+                    // Only the velocity block of Adapt·Φ P Φᵀ + Q − P(k|k) is needed.
+                    self.velocity_correction_cov = pred.fpf.fixed_view::<3, 3>(3, 3) * g.adapt
+                        + pred.q.fixed_view::<3, 3>(3, 3)
+                        - g.p.fixed_view::<3, 3>(3, 3);
                 }
                 self.stats.cv_updates += 1;
             }

@@ -182,6 +182,43 @@ fn log_sum_exp(values: &[f64]) -> f64 {
     max + values.iter().map(|v| (v - max).exp()).sum::<f64>().ln()
 }
 
+/// Σᵢ wᵢ [Pᵢ + (x̂ᵢ − x̂)(x̂ᵢ − x̂)ᵀ] over the terms with wᵢ > 0: the mixed covariance
+/// P⁰ⱼ (Bar-Shalom et al. 2001, eq. 11.6.6-11) and the combined one (eq. 11.6.6-20).
+///
+/// In place, column by column over fixed-size arrays (no temporary 9x9 matrices for the
+/// outer product and the scaled sum): entry by entry the same operations as
+/// `out += (Pᵢ + d dᵀ) wᵢ`. Every Pᵢ the estimator holds is exactly symmetric (each comes
+/// out of a symmetrisation: [`kalman::symmetrise`], a Kalman update,
+/// [`Prediction::covariance`]), and so is d dᵀ (dᵣ d꜀ = d꜀ dᵣ in floating point), so the
+/// sum is accumulated over the upper triangle alone and mirrored: the same result with 45
+/// entries instead of 81.
+fn spread_sum(
+    x: &[State9; N_MODES],
+    p: &[Matrix9; N_MODES],
+    w: &[f64; N_MODES],
+    mean: &State9,
+) -> Matrix9 {
+    let mut out = [[0.0f64; 9]; 9];
+    for ((xi, pi), &wi) in x.iter().zip(p).zip(w) {
+        if wi > 0.0 {
+            let d: [f64; 9] = (xi - mean).into();
+            let pi: &[[f64; 9]; 9] = &pi.data.0;
+            // Upper triangle (rows 0..=c of column c) only.
+            for (c, ((oc, pc), dc)) in out.iter_mut().zip(pi).zip(d).enumerate() {
+                for ((o, pv), dr) in oc.iter_mut().zip(pc).zip(d).take(c + 1) {
+                    *o += (pv + dr * dc) * wi;
+                }
+            }
+        }
+    }
+    for c in 0..9 {
+        for r in 0..c {
+            out[r][c] = out[c][r];
+        }
+    }
+    Matrix9::from(out)
+}
+
 /// The IMM estimator: one state and covariance per mode and the mode probabilities.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Imm {
@@ -325,15 +362,31 @@ impl Imm {
     pub fn transition(&self, dt_s: f64) -> [[f64; N_MODES]; N_MODES] {
         let mut pi = [[0.0; N_MODES]; N_MODES];
         let enabled = &self.params.enabled;
+        // exp(−dt/τ) once per distinct τ (the defaults have two: CV's and the manoeuvres').
+        let mut stays: [(f64, f64); N_MODES] = [(f64::NAN, 0.0); N_MODES];
+        let mut n_stays = 0;
         for (i, row) in pi.iter_mut().enumerate() {
             if !enabled[i] {
                 continue;
             }
             let tau = self.params.mean_sojourn_s[i];
-            let stay = if tau > 0.0 {
-                (-dt_s.max(0.0) / tau).exp()
-            } else {
-                0.0
+            let known = stays
+                .get(..n_stays)
+                .and_then(|s| s.iter().find(|(t, _)| *t == tau));
+            let stay = match known {
+                Some(&(_, stay)) => stay,
+                None => {
+                    let stay = if tau > 0.0 {
+                        (-dt_s.max(0.0) / tau).exp()
+                    } else {
+                        0.0
+                    };
+                    if let Some(slot) = stays.get_mut(n_stays) {
+                        *slot = (tau, stay);
+                        n_stays += 1;
+                    }
+                    stay
+                }
             };
             let weights = &self.params.switch_weights[i];
             let total: f64 = (0..N_MODES)
@@ -388,13 +441,7 @@ impl Imm {
                     x0 += xi * wi;
                 }
             }
-            let mut p0 = Matrix9::zeros();
-            for ((xi, pi_cov), wi) in self.x.iter().zip(&self.p).zip(w) {
-                if wi > 0.0 {
-                    let d = xi - x0;
-                    p0 += (pi_cov + d * d.transpose()) * wi;
-                }
-            }
+            let p0 = spread_sum(&self.x, &self.p, &w, &x0);
             // Mode-matched, divergence-guarded filtering.
             let pred = Prediction::<9>::new(self.models[j].as_dyn(), &x0, &p0, dt_s);
             match guarded_update(&pred, obs, &self.params.divergence, self.divergence_runs[j]) {
@@ -404,9 +451,8 @@ impl Imm {
                     p_new[j] = g.p;
                     diverged[j] = g.diverged;
                     runs[j] = g.run;
-                    corrections[j] = (pred.covariance(g.adapt) - g.p)
-                        .fixed_view::<3, 3>(VEL, VEL)
-                        .into_owned();
+                    corrections[j] =
+                        pred.covariance_block3(g.adapt, VEL) - g.p.fixed_view::<3, 3>(VEL, VEL);
                     if g.log_likelihood.is_finite() {
                         log_post[j] = c_bar[j].ln() + g.log_likelihood;
                     }
@@ -451,14 +497,9 @@ impl Imm {
     /// The combined estimate x̂ = Σ μⱼ x̂ⱼ and P = Σ μⱼ [Pⱼ + (x̂ⱼ − x̂)(x̂ⱼ − x̂)ᵀ].
     pub fn combined(&self) -> (State9, Matrix9) {
         let x = self.combined_state();
-        let mut p = Matrix9::zeros();
-        for ((xj, pj), mu) in self.x.iter().zip(self.p.iter()).zip(self.mu) {
-            if mu > 0.0 {
-                let d = xj - x;
-                p += (pj + d * d.transpose()) * mu;
-            }
-        }
-        (x, kalman::symmetrise(&p))
+        // Σ μⱼ [Pⱼ + dⱼ dⱼᵀ] is symmetric by construction (each Pⱼ is): symmetrising it
+        // changes nothing.
+        (x, spread_sum(&self.x, &self.p, &self.mu, &x))
     }
 
     /// The combined estimate x̂ = Σ μⱼ x̂ⱼ alone (no covariance: a tenth of the work).
@@ -882,6 +923,34 @@ impl Tracker for ImmTracker {
 mod tests {
     use super::*;
     use crate::track::UNMEASURED_VARIANCE;
+
+    /// The triangular in-place spread sum is bit for bit the full matrix sum it replaced
+    /// (for the exactly symmetric covariances the estimator holds).
+    #[test]
+    fn spread_sum_is_the_full_sum() {
+        use rand::rngs::StdRng;
+        use rand::{Rng, SeedableRng};
+        let mut rng = StdRng::seed_from_u64(17);
+        for _ in 0..200 {
+            let x: [State9; N_MODES] =
+                std::array::from_fn(|_| State9::from_fn(|_, _| rng.gen_range(-1e4..1e4)));
+            let p: [Matrix9; N_MODES] = std::array::from_fn(|_| {
+                let l = Matrix9::from_fn(|_, _| rng.gen_range(-10.0..10.0));
+                kalman::symmetrise(&(l * l.transpose()))
+            });
+            let mut w: [f64; N_MODES] = std::array::from_fn(|_| rng.gen_range(0.0..1.0));
+            w[rng.gen_range(0..N_MODES)] = 0.0;
+            let mean = State9::from_fn(|_, _| rng.gen_range(-1e4..1e4));
+            let mut full = Matrix9::zeros();
+            for ((xi, pi), wi) in x.iter().zip(&p).zip(w) {
+                if wi > 0.0 {
+                    let d = xi - mean;
+                    full += (pi + d * d.transpose()) * wi;
+                }
+            }
+            assert_eq!(spread_sum(&x, &p, &w, &mean), full);
+        }
+    }
 
     fn observed(value: Vector3<f64>, sigma: f64) -> Observed {
         Observed {

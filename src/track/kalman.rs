@@ -21,9 +21,16 @@ pub trait MotionModel<const N: usize> {
     /// Process noise covariance accumulated over `dt_s` seconds.
     fn q(&self, dt_s: f64) -> SMatrix<f64, N, N>;
 
+    /// F(dt) and Q(dt) together: one evaluation of what they share (the CT model's
+    /// trigonometric coefficients, the per-axis powers of dt). Must equal `(f(dt), q(dt))`.
+    fn fq(&self, dt_s: f64) -> (SMatrix<f64, N, N>, SMatrix<f64, N, N>) {
+        (self.f(dt_s), self.q(dt_s))
+    }
+
     /// One prediction step with this model (see [`predict`]).
     fn predict(&self, x: &mut SVector<f64, N>, p: &mut SMatrix<f64, N, N>, dt_s: f64) {
-        predict(x, p, &self.f(dt_s), &self.q(dt_s));
+        let (f, q) = self.fq(dt_s);
+        predict(x, p, &f, &q);
     }
 }
 
@@ -55,7 +62,369 @@ pub fn predict<const N: usize>(
     q: &SMatrix<f64, N, N>,
 ) {
     *x = f * *x;
-    *p = symmetrise(&(f * *p * f.transpose() + q));
+    *p = symmetrise(&(sparse_fpf(f, p) + q));
+}
+
+/// The non-zero entries of each row of `f`, column indices ascending.
+///
+/// Motion-model transitions are sparse (per-axis 2x2 or 3x3 blocks, the CT model's 2x2
+/// rotation coupling the horizontal velocities, zero rows for reset accelerations): a 9x9 F
+/// has 9 to 21 non-zeros of 81.
+struct RowSupport<const N: usize> {
+    col: [[usize; N]; N],
+    len: [usize; N],
+}
+
+impl<const N: usize> RowSupport<N> {
+    fn of(f: &SMatrix<f64, N, N>) -> Self {
+        let mut s = Self {
+            col: [[0; N]; N],
+            len: [0; N],
+        };
+        for (i, (cols, len)) in s.col.iter_mut().zip(s.len.iter_mut()).enumerate() {
+            for k in 0..N {
+                if f[(i, k)] != 0.0 {
+                    cols[*len] = k;
+                    *len += 1;
+                }
+            }
+        }
+        s
+    }
+
+    fn row(&self, i: usize) -> &[usize] {
+        &self.col[i][..self.len[i]]
+    }
+}
+
+/// By row, a superset of the columns where the F of every motion model of
+/// [`super::models`] (9-state) can be non-zero, ascending: per axis position ← position,
+/// velocity (both horizontal velocities for the CT model) and acceleration; velocity ←
+/// velocity (both horizontal for CT) and acceleration; acceleration ← itself (or nothing
+/// when reset). 22 entries of 81.
+const SUPPORT9: [&[usize]; 9] = [
+    &[0, 3, 4, 6],
+    &[1, 3, 4, 7],
+    &[2, 5, 8],
+    &[3, 4, 6],
+    &[3, 4, 7],
+    &[5, 8],
+    &[6],
+    &[7],
+    &[8],
+];
+
+/// Whether every non-zero of `f` lies in `support` (one row slice per row).
+fn within_support<const N: usize>(f: &SMatrix<f64, N, N>, support: &[&[usize]]) -> bool {
+    support.len() == N
+        && support.iter().enumerate().all(|(i, cols)| {
+            (0..N).fold(true, |ok, k| ok & (f[(i, k)] == 0.0 || cols.contains(&k)))
+        })
+}
+
+/// F P Fᵀ summing, for each entry, the terms of the columns in `support` (ascending).
+#[inline(always)]
+fn fpf_on_support<const N: usize>(
+    f: &SMatrix<f64, N, N>,
+    p: &SMatrix<f64, N, N>,
+    support: &[&[usize]],
+) -> SMatrix<f64, N, N> {
+    // G = F P, column by column: G[i, j] = Σₖ F[i, k] P[k, j].
+    let mut g = SMatrix::<f64, N, N>::zeros();
+    for j in 0..N {
+        for (i, cols) in support.iter().enumerate() {
+            let mut acc = 0.0;
+            for &k in cols.iter() {
+                acc += f[(i, k)] * p[(k, j)];
+            }
+            g[(i, j)] = acc;
+        }
+    }
+    // G Fᵀ: entry (i, j) = Σₖ G[i, k] F[j, k] over row j of F.
+    let mut out = SMatrix::<f64, N, N>::zeros();
+    for (j, cols) in support.iter().enumerate() {
+        let mut col = [0.0; N];
+        for &k in cols.iter() {
+            let fjk = f[(j, k)];
+            for (i, c) in col.iter_mut().enumerate() {
+                *c += g[(i, k)] * fjk;
+            }
+        }
+        out.column_mut(j).copy_from_slice(&col);
+    }
+    out
+}
+
+/// F P Fᵀ for a sparse F, bit for bit what the dense product `f * p * f.transpose()` gives.
+///
+/// nalgebra evaluates each entry of a small fixed-size product as Σₖ aᵢₖ bₖⱼ accumulated with
+/// k ascending; a term with a zero factor adds an exact zero (P is finite here). Summing only
+/// the terms of a superset of F's non-zeros, k still ascending, therefore gives the same
+/// floating-point result with nnz·N instead of N³ multiplications per product (tested
+/// bit-equal): the motion models' fixed pattern ([`SUPPORT9`]) when F fits it, else the
+/// non-zeros found in F. Below 9x9 the dense product is used (faster there, same result).
+pub fn sparse_fpf<const N: usize>(
+    f: &SMatrix<f64, N, N>,
+    p: &SMatrix<f64, N, N>,
+) -> SMatrix<f64, N, N> {
+    if N < 9 {
+        // Up to 6x6 the dense product, fully unrolled and vectorised, is the faster.
+        return f * p * f.transpose();
+    }
+    if N == 9 && within_support(f, &SUPPORT9) {
+        return fpf_on_support(f, p, &SUPPORT9);
+    }
+    let support = RowSupport::of(f);
+    let rows: [&[usize]; N] = std::array::from_fn(|i| support.row(i));
+    fpf_on_support(f, p, &rows)
+}
+
+/// Whether the symmetric `a` is positive definite, by an LDLᵀ factorisation (no square
+/// roots, fixed size, no allocation).
+///
+/// A symmetric matrix is positive definite if and only if every pivot dⱼ of its LDLᵀ
+/// factorisation is positive (Golub & Van Loan, *Matrix Computations*, 4th ed., §4.2), and
+/// dⱼ = ℓⱼⱼ² where ℓ is the Cholesky factor: this is the same test as a Cholesky
+/// factorisation (it fails on the same matrices up to rounding), without its N square
+/// roots. A NaN pivot fails too.
+pub fn is_positive_definite<const N: usize>(a: &SMatrix<f64, N, N>) -> bool {
+    // Row-wise: l[(j, k)] for k < j holds Lⱼₖ, d[j] the pivots.
+    let mut l = SMatrix::<f64, N, N>::zeros();
+    let mut d = [0.0; N];
+    for j in 0..N {
+        // wₖ = Lⱼₖ dₖ, computed as the unscaled entries of row j.
+        let mut djj = a[(j, j)];
+        for k in 0..j {
+            let mut v = a[(j, k)];
+            for m in 0..k {
+                v -= l[(j, m)] * l[(k, m)] * d[m];
+            }
+            let ljk = v / d[k];
+            l[(j, k)] = ljk;
+            djj -= ljk * v;
+        }
+        if djj.is_nan() || djj <= 0.0 || djj.is_infinite() {
+            return false;
+        }
+        d[j] = djj;
+    }
+    true
+}
+
+/// The typed errors of a non-finite input, in the order every update checks them.
+fn check_finite<const N: usize, const M: usize>(
+    x: &SVector<f64, N>,
+    p: &SMatrix<f64, N, N>,
+    z: &SVector<f64, M>,
+    r: &SMatrix<f64, M, M>,
+) -> Result<(), TrackError> {
+    if !all_finite(z.as_slice()) {
+        return Err(TrackError::NonFinite("measurement"));
+    }
+    if !all_finite(r.as_slice()) {
+        return Err(TrackError::NonFinite("measurement covariance"));
+    }
+    if !all_finite(x.as_slice()) || !all_finite(p.as_slice()) {
+        return Err(TrackError::NonFinite("state"));
+    }
+    Ok(())
+}
+
+/// Every value finite, without a branch per value (the check runs on every update).
+fn all_finite(values: &[f64]) -> bool {
+    values.iter().fold(true, |ok, v| ok & v.is_finite())
+}
+
+/// Solves L Lᵀ X = B in place for the Cholesky factor `l` (lower triangle read), exactly as
+/// nalgebra's `Cholesky::solve` does it (the same operations in the same order, so the same
+/// result: forward substitution by column updates, back substitution by dot products summed
+/// in ascending order), without its generic views.
+fn cholesky_solve_mut<const M: usize, const C: usize>(
+    l: &SMatrix<f64, M, M>,
+    b: &mut SMatrix<f64, M, C>,
+) {
+    for c in 0..C {
+        let mut y = [0.0; M];
+        for (i, yi) in y.iter_mut().enumerate() {
+            *yi = b[(i, c)];
+        }
+        // L y = b.
+        for i in 0..M {
+            let coeff = y[i] / l[(i, i)];
+            y[i] = coeff;
+            for k in i + 1..M {
+                y[k] += -coeff * l[(k, i)];
+            }
+        }
+        // Lᵀ x = y.
+        for i in (0..M).rev() {
+            let mut dot = 0.0;
+            for k in i + 1..M {
+                dot += l[(k, i)] * y[k];
+            }
+            y[i] = (y[i] - dot) / l[(i, i)];
+        }
+        for (i, yi) in y.iter().enumerate() {
+            b[(i, c)] = *yi;
+        }
+    }
+}
+
+/// `Some(sel)` when H selects state components: row m is the unit row e_{sel[m]}ᵀ, with
+/// sel strictly ascending (what [`update_selected`] takes).
+pub fn selection<const N: usize, const M: usize>(h: &SMatrix<f64, M, N>) -> Option<[usize; M]> {
+    let mut sel = [0; M];
+    for (m, s) in sel.iter_mut().enumerate() {
+        let mut found = None;
+        for k in 0..N {
+            let v = h[(m, k)];
+            if v == 1.0 && found.is_none() {
+                found = Some(k);
+            } else if v != 0.0 {
+                return None;
+            }
+        }
+        *s = found?;
+    }
+    sel.windows(2).all(|w| w[0] < w[1]).then_some(sel)
+}
+
+/// `[offset, offset + 1, offset + 2]`: a 3-vector block of the state.
+pub const fn block3(offset: usize) -> [usize; 3] {
+    [offset, offset + 1, offset + 2]
+}
+
+/// `[a, a + 1, a + 2, b, b + 1, b + 2]`: two 3-vector blocks of the state (a < b − 2).
+pub const fn blocks6(a: usize, b: usize) -> [usize; 6] {
+    [a, a + 1, a + 2, b, b + 1, b + 2]
+}
+
+/// [`update`] for an H that selects the state components `sel` (z = x[sel] + v: a position
+/// block, a velocity block, or both), with the same result bit for bit and a fraction of the
+/// work. `sel` must be strictly ascending and inside the state, else the step is refused
+/// with `NotPositiveDefinite` (nothing reachable by input builds such a `sel`).
+///
+/// With H selecting, H x = x[sel], H P = P[sel, :] and S = P[sel, sel] + R are copies, not
+/// products (Bar-Shalom et al. 2001, eq. 5.2.3-9 to -11). S is Cholesky-factored (S = L Lᵀ)
+/// and K = P Hᵀ S⁻¹ solves S Kᵀ = P[sel, :] (never inverting S). The covariance keeps
+/// Joseph's form (Bar-Shalom et al. 2001, eq. 5.2.3-18), P ← (I − KH) P (I − KH)ᵀ + K R Kᵀ,
+/// which stays symmetric positive semi-definite for any gain: with H selecting, row i of
+/// I − KH has non-zeros only at the columns `sel` and i, so A = (I − KH) P =
+/// P − K P[sel, :] and A (I − KH)ᵀ = A − A[:, sel] Kᵀ cost (M + 1) N² multiplications each
+/// instead of N³. Each entry sums its non-zero terms in the column order the dense product
+/// uses, which makes the result identical to [`update`]'s (a zero term adds an exact zero),
+/// then the sum is symmetrised and checked positive definite ([`is_positive_definite`]).
+/// NIS = |L⁻¹ ε|² and ln det S = 2 Σ ln Lᵢᵢ come from the same factor, in log space.
+#[inline(always)]
+pub fn update_selected<const N: usize, const M: usize>(
+    x: &mut SVector<f64, N>,
+    p: &mut SMatrix<f64, N, N>,
+    z: &SVector<f64, M>,
+    sel: &[usize; M],
+    r: &SMatrix<f64, M, M>,
+) -> Result<Innovation<M>, TrackError> {
+    check_finite(x, p, z, r)?;
+    if sel.iter().any(|&k| k >= N) || sel.windows(2).any(|w| w[0] >= w[1]) {
+        return Err(TrackError::NotPositiveDefinite);
+    }
+    let mut residual = SVector::<f64, M>::zeros();
+    let mut hp = SMatrix::<f64, M, N>::zeros();
+    for (m, &k) in sel.iter().enumerate() {
+        residual[m] = z[m] - x[k];
+        hp.row_mut(m).copy_from(&p.row(k));
+    }
+    let mut s = *r;
+    for (a, &ka) in sel.iter().enumerate() {
+        for (b, &kb) in sel.iter().enumerate() {
+            s[(a, b)] = p[(ka, kb)] + r[(a, b)];
+        }
+    }
+    let s = symmetrise(&s);
+    let chol = Cholesky::new(s).ok_or(TrackError::NotPositiveDefinite)?;
+    // S Kᵀ = H P  =>  Kᵀ = S⁻¹ H P (S and P symmetric).
+    let mut kt = hp;
+    cholesky_solve_mut(chol.l_dirty(), &mut kt);
+    let k = kt.transpose();
+    let x_new = *x + k * residual;
+
+    // I − KH: column sel[m] is e_sel[m] − K[:, m] (the columns of G below), every other
+    // column k is e_k. `slot[k]` = m when sel[m] = k, M otherwise.
+    let mut slot = [M; N];
+    for (m, &c) in sel.iter().enumerate() {
+        slot[c] = m;
+    }
+    let g = SMatrix::<f64, N, M>::from_fn(|i, m| {
+        if i == sel[m] {
+            1.0 - k[(i, m)]
+        } else {
+            0.0 - k[(i, m)]
+        }
+    });
+    // A = (I − KH) P = P − K P[sel, :], column by column: A[:, j] = Σₖ (I − KH)[:, k] P[k, j]
+    // with k ascending, the order of the dense product.
+    let mut a = SMatrix::<f64, N, N>::zeros();
+    for j in 0..N {
+        let mut col = [0.0; N];
+        for (kk, &m) in slot.iter().enumerate() {
+            let pkj = p[(kk, j)];
+            if m < M {
+                for (i, c) in col.iter_mut().enumerate() {
+                    *c += g[(i, m)] * pkj;
+                }
+            } else {
+                col[kk] += pkj;
+            }
+        }
+        a.column_mut(j).copy_from_slice(&col);
+    }
+    // A (I − KH)ᵀ = A − A[:, sel] Kᵀ, column j = Σₖ A[:, k] (I − KH)[j, k] over the non-zeros
+    // of row j (the columns sel, and j), then + K R Kᵀ.
+    let mut p_new = k * r * k.transpose();
+    for j in 0..N {
+        let mut col = [0.0; N];
+        for (kk, &m) in slot.iter().enumerate() {
+            if m < M {
+                let w = g[(j, m)];
+                for (i, c) in col.iter_mut().enumerate() {
+                    *c += a[(i, kk)] * w;
+                }
+            } else if kk == j {
+                for (i, c) in col.iter_mut().enumerate() {
+                    *c += a[(i, kk)];
+                }
+            }
+        }
+        for (i, c) in col.iter().enumerate() {
+            p_new[(i, j)] += c;
+        }
+    }
+    let p_new = symmetrise(&p_new);
+    if !x_new.iter().all(|v| v.is_finite()) || !is_positive_definite(&p_new) {
+        return Err(TrackError::NotPositiveDefinite);
+    }
+    let (nis, log_likelihood) = nis_and_log_likelihood(&chol, &residual)?;
+    *x = x_new;
+    *p = p_new;
+    Ok(Innovation {
+        residual,
+        s,
+        nis,
+        log_likelihood,
+    })
+}
+
+/// NIS = εᵀ S⁻¹ ε = |L⁻¹ ε|² and ln N(ε; 0, S) with ln det S = 2 Σ ln Lᵢᵢ (log space).
+fn nis_and_log_likelihood<const M: usize>(
+    chol: &Cholesky<f64, nalgebra::Const<M>>,
+    residual: &SVector<f64, M>,
+) -> Result<(f64, f64), TrackError> {
+    let l = chol.l();
+    let w = l
+        .solve_lower_triangular(residual)
+        .ok_or(TrackError::NotPositiveDefinite)?;
+    let nis = w.norm_squared();
+    let ln_det_s = 2.0 * l.diagonal().iter().map(|d| d.ln()).sum::<f64>();
+    Ok((nis, -0.5 * (nis + M as f64 * LN_2PI + ln_det_s)))
 }
 
 /// Measurement update with z = H x + v, v ~ N(0, R).
@@ -67,6 +436,10 @@ pub fn predict<const N: usize>(
 ///
 /// On error `x` and `p` are left unchanged: `NonFinite` for a non-finite input,
 /// `NotPositiveDefinite` when S or the updated P cannot be factored.
+///
+/// An H that selects state components (every row a unit row, columns ascending: position
+/// and velocity reports) goes to [`update_selected`], which gives the same result with a
+/// fraction of the work; any other H to [`update_dense`].
 pub fn update<const N: usize, const M: usize>(
     x: &mut SVector<f64, N>,
     p: &mut SMatrix<f64, N, N>,
@@ -74,15 +447,22 @@ pub fn update<const N: usize, const M: usize>(
     h: &SMatrix<f64, M, N>,
     r: &SMatrix<f64, M, M>,
 ) -> Result<Innovation<M>, TrackError> {
-    if !z.iter().all(|v| v.is_finite()) {
-        return Err(TrackError::NonFinite("measurement"));
+    match selection(h) {
+        Some(sel) => update_selected(x, p, z, &sel, r),
+        None => update_dense(x, p, z, h, r),
     }
-    if !r.iter().all(|v| v.is_finite()) {
-        return Err(TrackError::NonFinite("measurement covariance"));
-    }
-    if !x.iter().chain(p.iter()).all(|v| v.is_finite()) {
-        return Err(TrackError::NonFinite("state"));
-    }
+}
+
+/// [`update`] with dense products for any H: the reference the specialised
+/// [`update_selected`] is tested against, and the path of an H that does not select.
+pub fn update_dense<const N: usize, const M: usize>(
+    x: &mut SVector<f64, N>,
+    p: &mut SMatrix<f64, N, N>,
+    z: &SVector<f64, M>,
+    h: &SMatrix<f64, M, N>,
+    r: &SMatrix<f64, M, M>,
+) -> Result<Innovation<M>, TrackError> {
+    check_finite(x, p, z, r)?;
     let residual = z - h * *x;
     let hp = h * *p;
     let s = symmetrise(&(hp * h.transpose() + r));
@@ -92,17 +472,10 @@ pub fn update<const N: usize, const M: usize>(
     let x_new = *x + k * residual;
     let i_kh = SMatrix::<f64, N, N>::identity() - k * h;
     let p_new = symmetrise(&(i_kh * *p * i_kh.transpose() + k * r * k.transpose()));
-    if !x_new.iter().all(|v| v.is_finite()) || Cholesky::new(p_new).is_none() {
+    if !x_new.iter().all(|v| v.is_finite()) || !is_positive_definite(&p_new) {
         return Err(TrackError::NotPositiveDefinite);
     }
-    // NIS = εᵀ S⁻¹ ε = |L⁻¹ ε|².
-    let l = chol.l();
-    let w = l
-        .solve_lower_triangular(&residual)
-        .ok_or(TrackError::NotPositiveDefinite)?;
-    let nis = w.norm_squared();
-    let ln_det_s = 2.0 * l.diagonal().iter().map(|d| d.ln()).sum::<f64>();
-    let log_likelihood = -0.5 * (nis + M as f64 * LN_2PI + ln_det_s);
+    let (nis, log_likelihood) = nis_and_log_likelihood(&chol, &residual)?;
     *x = x_new;
     *p = p_new;
     Ok(Innovation {
@@ -116,6 +489,142 @@ pub fn update<const N: usize, const M: usize>(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use proptest::prelude::*;
+    use rand::rngs::StdRng;
+    use rand::{Rng, SeedableRng};
+
+    /// A random symmetric positive definite matrix with entries spread over `scale` decades.
+    fn random_spd<const N: usize>(rng: &mut StdRng, scale: f64) -> SMatrix<f64, N, N> {
+        let d = SVector::<f64, N>::from_fn(|_, _| 10f64.powf(rng.gen_range(-scale..scale)));
+        let l = SMatrix::<f64, N, N>::from_fn(|i, j| {
+            if i >= j {
+                rng.gen_range(-1.0..1.0)
+            } else {
+                0.0
+            }
+        });
+        let a = SMatrix::<f64, N, N>::from_diagonal(&d)
+            * (l * l.transpose())
+            * SMatrix::<f64, N, N>::from_diagonal(&d)
+            + SMatrix::<f64, N, N>::from_diagonal(&d.component_mul(&d)) * 1e-3;
+        symmetrise(&a)
+    }
+
+    fn pick_h<const N: usize, const M: usize>(sel: &[usize; M]) -> SMatrix<f64, M, N> {
+        let mut h = SMatrix::<f64, M, N>::zeros();
+        for (m, &k) in sel.iter().enumerate() {
+            h[(m, k)] = 1.0;
+        }
+        h
+    }
+
+    /// The specialised update against the dense one: the same bits (so a fortiori within
+    /// 1e-9 relative), the same errors.
+    fn assert_selected_equals_dense<const N: usize, const M: usize>(seed: u64, sel: [usize; M]) {
+        let mut rng = StdRng::seed_from_u64(seed);
+        let p0 = random_spd::<N>(&mut rng, 3.0);
+        let mut r = random_spd::<M>(&mut rng, 2.0);
+        if rng.gen_bool(0.3) {
+            // A diagonal R with an unmeasured component, as velocity reports without a
+            // vertical rate carry.
+            r = SMatrix::<f64, M, M>::from_diagonal(&r.diagonal());
+            r[(M - 1, M - 1)] = crate::track::UNMEASURED_VARIANCE;
+        }
+        let x0 = SVector::<f64, N>::from_fn(|_, _| rng.gen_range(-1e4..1e4));
+        let z = SVector::<f64, M>::from_fn(|m, _| x0[sel[m]] + rng.gen_range(-100.0..100.0));
+        let h = pick_h::<N, M>(&sel);
+        assert_eq!(selection(&h), Some(sel));
+        let (mut x1, mut p1) = (x0, p0);
+        let (mut x2, mut p2) = (x0, p0);
+        let a = update_selected(&mut x1, &mut p1, &z, &sel, &r);
+        let b = update_dense(&mut x2, &mut p2, &z, &h, &r);
+        assert_eq!(a, b, "innovation, seed {seed}");
+        assert_eq!(x1, x2, "x, seed {seed}");
+        assert_eq!(p1, p2, "P, seed {seed}");
+        if let (Ok(a), Ok(b)) = (a, b) {
+            assert_eq!(a.nis.to_bits(), b.nis.to_bits());
+            assert_eq!(a.log_likelihood.to_bits(), b.log_likelihood.to_bits());
+        }
+    }
+
+    proptest! {
+        #[test]
+        fn selected_update_is_the_dense_update(seed in any::<u64>()) {
+            assert_selected_equals_dense::<6, 3>(seed, block3(0));
+            assert_selected_equals_dense::<6, 3>(seed, block3(3));
+            assert_selected_equals_dense::<6, 6>(seed, blocks6(0, 3));
+            assert_selected_equals_dense::<9, 3>(seed, block3(0));
+            assert_selected_equals_dense::<9, 3>(seed, block3(3));
+            assert_selected_equals_dense::<9, 6>(seed, blocks6(0, 3));
+            assert_selected_equals_dense::<10, 3>(seed, [0, 1, 4]);
+        }
+
+        #[test]
+        fn sparse_prediction_is_the_dense_product(seed in any::<u64>(), dt in 0.0..30.0f64) {
+            use crate::track::models::{Ca, Ch, Chca, Ct, Cv};
+            let mut rng = StdRng::seed_from_u64(seed);
+            let p = random_spd::<9>(&mut rng, 3.0);
+            let models: [&dyn MotionModel<9>; 6] = [
+                &Cv::default(),
+                &Ca::default(),
+                &Ct::default(),
+                &Ct::turning(false, 0.3),
+                &Ch::default(),
+                &Chca::default(),
+            ];
+            for m in models {
+                let f = m.f(dt);
+                prop_assert_eq!(sparse_fpf(&f, &p), f * p * f.transpose());
+            }
+            // Any other sparsity (found at run time), and an F outside the models' pattern.
+            let mut f5 = SMatrix::<f64, 10, 10>::from_fn(|_, _| rng.gen_range(-2.0..2.0));
+            f5[(1, 3)] = 0.0;
+            f5[(4, 0)] = 0.0;
+            let p5 = random_spd::<10>(&mut rng, 2.0);
+            prop_assert_eq!(sparse_fpf(&f5, &p5), f5 * p5 * f5.transpose());
+            let mut f9 = models[2].f(dt);
+            f9[(8, 0)] = 0.5;
+            prop_assert_eq!(sparse_fpf(&f9, &p), f9 * p * f9.transpose());
+            let p6 = random_spd::<6>(&mut rng, 3.0);
+            let f6 = MotionModel::<6>::f(&Cv::default(), dt);
+            prop_assert_eq!(sparse_fpf(&f6, &p6), f6 * p6 * f6.transpose());
+        }
+
+        #[test]
+        fn ldlt_check_agrees_with_cholesky(seed in any::<u64>(), shift in -2.0..0.5f64) {
+            let mut rng = StdRng::seed_from_u64(seed);
+            // Shifting the spectrum down makes about half of these indefinite.
+            let a = random_spd::<9>(&mut rng, 0.5);
+            let min = nalgebra::SymmetricEigen::new(a).eigenvalues.min();
+            let b = a - SMatrix::<f64, 9, 9>::identity() * (min * (1.0 - shift));
+            prop_assert_eq!(is_positive_definite(&b), Cholesky::new(b).is_some());
+        }
+    }
+
+    #[test]
+    fn selection_recognises_only_ascending_unit_rows() {
+        assert_eq!(selection(&pick_h::<9, 3>(&block3(3))), Some([3, 4, 5]));
+        let mut h = pick_h::<9, 3>(&block3(0));
+        h[(1, 5)] = 0.5;
+        assert_eq!(selection(&h), None);
+        let h = pick_h::<9, 2>(&[4, 1]);
+        assert_eq!(selection(&h), None);
+        let mut h = pick_h::<9, 2>(&[1, 4]);
+        h[(0, 1)] = 2.0;
+        assert_eq!(selection(&h), None);
+        assert!(!is_positive_definite(&Matrix2::new(1.0, 2.0, 2.0, 1.0)));
+        assert!(!is_positive_definite(&Matrix2::new(
+            f64::NAN,
+            0.0,
+            0.0,
+            1.0
+        )));
+        assert!(is_positive_definite(&Matrix2::new(2.0, 1.0, 1.0, 2.0)));
+        // A malformed selection is refused, not a panic.
+        let (mut x, mut p) = (SVector::<f64, 3>::zeros(), SMatrix::<f64, 3, 3>::identity());
+        let err = update_selected(&mut x, &mut p, &Vector1::new(0.0), &[7], &Matrix1::new(1.0));
+        assert_eq!(err, Err(TrackError::NotPositiveDefinite));
+    }
     use nalgebra::{Matrix1, Matrix1x2, Matrix2, Vector1, Vector2};
 
     /// 1-D constant velocity, for the trait tests.

@@ -156,6 +156,9 @@ impl MotionModel<6> for Cv {
     fn q(&self, dt_s: f64) -> Matrix6 {
         cv3d::<6>(dt_s, self.densities()).1
     }
+    fn fq(&self, dt_s: f64) -> (Matrix6, Matrix6) {
+        cv3d::<6>(dt_s, self.densities())
+    }
 }
 
 impl MotionModel<9> for Cv {
@@ -164,6 +167,9 @@ impl MotionModel<9> for Cv {
     }
     fn q(&self, dt_s: f64) -> Matrix9 {
         cv3d_reset(dt_s, self.densities(), self.acc_reset_sigma_mps2).1
+    }
+    fn fq(&self, dt_s: f64) -> (Matrix9, Matrix9) {
+        cv3d_reset(dt_s, self.densities(), self.acc_reset_sigma_mps2)
     }
 }
 
@@ -216,6 +222,15 @@ impl MotionModel<9> for Ca {
             self.acc_reset_sigma_mps2,
         )
         .1
+    }
+    /// F does not depend on the densities: one evaluation gives both.
+    fn fq(&self, dt_s: f64) -> (Matrix9, Matrix9) {
+        ca_with_vertical_cv(
+            dt_s,
+            self.jerk_q_h_m2ps5,
+            self.q_v_m2ps3,
+            self.acc_reset_sigma_mps2,
+        )
     }
 }
 
@@ -405,6 +420,9 @@ impl MotionModel<9> for Ct {
     fn q(&self, dt_s: f64) -> Matrix9 {
         ct_fq(self, dt_s).1
     }
+    fn fq(&self, dt_s: f64) -> (Matrix9, Matrix9) {
+        ct_fq(self, dt_s)
+    }
 }
 
 /// Climb or descent at constant ground velocity (paper 002 eq. 4, "CH: constant climb or
@@ -443,6 +461,14 @@ impl MotionModel<9> for Ch {
             self.acc_reset_sigma_mps2,
         )
         .1
+    }
+    /// F does not depend on the densities: one evaluation gives both.
+    fn fq(&self, dt_s: f64) -> (Matrix9, Matrix9) {
+        cv3d_reset(
+            dt_s,
+            [self.q_h_m2ps3, self.q_h_m2ps3, self.q_v_m2ps3],
+            self.acc_reset_sigma_mps2,
+        )
     }
 }
 
@@ -483,6 +509,15 @@ impl MotionModel<9> for Chca {
         )
         .1
     }
+    /// F does not depend on the densities: one evaluation gives both.
+    fn fq(&self, dt_s: f64) -> (Matrix9, Matrix9) {
+        ca_with_vertical_cv(
+            dt_s,
+            self.jerk_q_h_m2ps5,
+            self.q_v_m2ps3,
+            self.acc_reset_sigma_mps2,
+        )
+    }
 }
 
 /// Any of the five models: the IMM's model list without boxing (static dispatch, no
@@ -520,6 +555,9 @@ impl MotionModel<9> for Model {
     }
     fn q(&self, dt_s: f64) -> Matrix9 {
         self.as_dyn().q(dt_s)
+    }
+    fn fq(&self, dt_s: f64) -> (Matrix9, Matrix9) {
+        self.as_dyn().fq(dt_s)
     }
 }
 
@@ -814,5 +852,28 @@ mod tests {
         let by_enum = Model::Ct(Ct::default());
         assert_eq!(models[1].f(3.0), by_enum.as_dyn().f(3.0));
         assert_eq!(models[0].q(3.0), MotionModel::<9>::q(&Cv::default(), 3.0));
+    }
+
+    /// `fq` is `(f, q)` for every model (it shares their work, nothing else).
+    #[test]
+    fn fq_is_f_and_q() {
+        let models = [
+            Model::Cv(Cv::default()),
+            Model::Ca(Ca::default()),
+            Model::Ct(Ct::default()),
+            Model::Ct(Ct::turning(false, 0.01)),
+            Model::Ch(Ch::default()),
+            Model::Chca(Chca::default()),
+        ];
+        for dt in [0.0, 0.3, 1.0, 17.0] {
+            for m in &models {
+                assert_eq!(m.fq(dt), (m.f(dt), m.q(dt)), "{m:?} at {dt}");
+            }
+            let cv = Cv::default();
+            assert_eq!(
+                MotionModel::<6>::fq(&cv, dt),
+                (MotionModel::<6>::f(&cv, dt), MotionModel::<6>::q(&cv, dt))
+            );
+        }
     }
 }

@@ -211,12 +211,9 @@ fn spread_sum(
             }
         }
     }
-    for c in 0..9 {
-        for r in 0..c {
-            out[r][c] = out[c][r];
-        }
-    }
-    Matrix9::from(out)
+    let mut out = Matrix9::from(out);
+    out.fill_lower_triangle_with_upper_triangle();
+    out
 }
 
 /// The IMM estimator: one state and covariance per mode and the mode probabilities.

@@ -34,6 +34,7 @@ fn fleet_file() -> PathBuf {
             radius_km: 300.0,
             duration_s: 120.0,
             seed: 9,
+            mode_weights: Default::default(),
         };
         let scenario = fleet(&spec).unwrap_or_else(|e| panic!("{e}"));
         simulate(&scenario, 9, &dir.join("small")).unwrap_or_else(|e| panic!("{e}"));

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The fleet benchmark of issue 9: 1000 simulated aircraft for 10 minutes (the built-in
 # scenario `fleet`, fixtures/scenarios/fleet.toml), through the whole daemon, release build.
-# Reports, for `hybrid` and `kalman-cv`:
+# Reports, for `hybrid` and `kalman-cv` (FLEET=fleet-uniform for the stress mix):
 #   replay --speed max: frames per CPU-second and per wall-second (two cores, and one core
 #                       with taskset), peak RSS, RSS per aircraft (against a one-aircraft run);
 #   live TCP:           the same file served by `feed-sender` as fast as the socket takes it,
@@ -18,9 +18,12 @@ bin=target/release/adsb-tracker
 sender=target/release/feed-sender
 work=${FLEET_DIR:-target/fleet}
 mkdir -p "$work"
-[ -f "$work/fleet.beast" ] || "$bin" simulate fleet --out "$work/fleet" >/dev/null
+scenario=${FLEET:-fleet}
+work=$work/$scenario
+mkdir -p "$work"
+[ -f "$work/fleet.beast" ] || "$bin" simulate "$scenario" --out "$work/fleet" >/dev/null
 if [ ! -f "$work/one.beast" ]; then
-  sed 's/^aircraft = 1000/aircraft = 1/' fixtures/scenarios/fleet.toml > "$work/one.toml"
+  sed "s/^aircraft = 1000/aircraft = 1/" "fixtures/scenarios/$scenario.toml" > "$work/one.toml"
   "$bin" simulate "$work/one.toml" --out "$work/one" >/dev/null
 fi
 frames_of() { python3 -c 'import json,sys; print(json.load(open(sys.argv[1]))["frames"])' "$1"; }
@@ -73,6 +76,17 @@ PY
   rm -f "$cfg"
 }
 
+# RSS while tracking at 20x real time (queues near empty): what holding N aircraft costs.
+steady_rss() { # FILE TRACKER -> VmRSS kB after 15 s
+  local api=$((36000 + RANDOM % 4000))
+  RUST_LOG=warn "$bin" replay "$1" --tracker "$2" --speed 20 --serve "127.0.0.1:$api" \
+    > /dev/null 2>&1 &
+  local pid=$!
+  sleep 15
+  awk '/VmRSS/{print $2}' "/proc/$pid/status"
+  kill "$pid"; wait "$pid" 2>/dev/null || true
+}
+
 "$bin" replay "$work/fleet.beast" --tracker kalman-cv > "$work/fleet.stats.json" 2>/dev/null
 echo "fleet: $(frames_of "$work/fleet.stats.json") frames, 1000 aircraft, 600 s"
 for tracker in hybrid kalman-cv; do
@@ -82,6 +96,8 @@ for tracker in hybrid kalman-cv; do
     read -r f wall cpu rss <<< "$(replay "$work/fleet.beast" "$tracker")"
     python3 -c "f,w,c,r,b=$f,$wall,$cpu,$rss,$base; print(f'replay 2 cores: {f/c/1e6:.2f} M frames/CPU-s, {f/w/1e6:.2f} M frames/wall-s, {c:.2f} CPU-s, peak RSS {r/1024:.1f} MiB, {(r-b)/1000:.1f} KiB/aircraft (1-aircraft run {b/1024:.1f} MiB)')"
   done
+  r1=$(steady_rss "$work/one.beast" "$tracker"); r1000=$(steady_rss "$work/fleet.beast" "$tracker")
+  python3 -c "a,b=$r1,$r1000; print(f'steady 20x real time: RSS {b/1024:.1f} MiB with 1000 aircraft, {a/1024:.1f} MiB with 1: {(b-a)/999:.1f} KiB per aircraft')"
   for i in $(seq "$runs"); do
     read -r f wall cpu rss <<< "$(replay "$work/fleet.beast" "$tracker" taskset -c 0)"
     python3 -c "f,w,c=$f,$wall,$cpu; print(f'replay 1 core:  {f/c/1e6:.2f} M frames/CPU-s, {f/w/1e6:.2f} M frames/wall-s')"

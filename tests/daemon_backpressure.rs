@@ -30,6 +30,7 @@ fn fleet_file() -> PathBuf {
         radius_km: 250.0,
         duration_s: 45.0,
         seed: 7,
+        mode_weights: Default::default(),
     };
     let prefix = dir.join("fleet");
     simulate(&fleet(&spec).unwrap(), 7, &prefix).unwrap();

@@ -454,6 +454,7 @@ fn a_fleet_runs_in_order_with_every_aircraft_heard() {
         radius_km: 200.0,
         duration_s: 300.0,
         seed: 42,
+        mode_weights: Default::default(),
     };
     let s = fleet(&spec).unwrap();
     let started = std::time::Instant::now();

@@ -85,7 +85,7 @@ impl SimSummary {
 }
 
 /// The built-in scenarios: name and TOML text (fixtures/scenarios/NAME.toml, embedded).
-pub const BUILTIN: [(&str, &str); 9] = [
+pub const BUILTIN: [(&str, &str); 10] = [
     (
         "paper000",
         include_str!("../../fixtures/scenarios/paper000.toml"),
@@ -119,6 +119,10 @@ pub const BUILTIN: [(&str, &str); 9] = [
         include_str!("../../fixtures/scenarios/approach.toml"),
     ),
     ("fleet", include_str!("../../fixtures/scenarios/fleet.toml")),
+    (
+        "fleet-uniform",
+        include_str!("../../fixtures/scenarios/fleet-uniform.toml"),
+    ),
 ];
 
 /// Names of the built-in scenarios.
@@ -182,7 +186,7 @@ mod tests {
             e,
             "no scenario file \"nope\" and no built-in scenario of that name \
              (built-in: paper000, paper000-positions, paper001, paper002, paper002-positions, \
-             paper003, departure, approach, fleet)"
+             paper003, departure, approach, fleet, fleet-uniform)"
         );
     }
 

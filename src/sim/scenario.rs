@@ -441,6 +441,69 @@ pub struct FleetSpec {
     pub duration_s: f64,
     /// Seed of the generator (and the default seed of the scenario it makes).
     pub seed: u64,
+    /// Relative frequency of each flight mode among the segments; default: one fifth each.
+    #[serde(default)]
+    pub mode_weights: ModeWeights,
+}
+
+/// Relative weights of the five modes in a generated fleet's segments (`[fleet]
+/// mode_weights = { cv = .., ca = .., ct = .., ch = .., chca = .. }`), any non-negative
+/// numbers with a positive sum; a missing mode weighs 1.
+#[derive(Clone, Copy, Debug, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ModeWeights {
+    #[serde(default = "one")]
+    pub cv: f64,
+    #[serde(default = "one")]
+    pub ca: f64,
+    #[serde(default = "one")]
+    pub ct: f64,
+    #[serde(default = "one")]
+    pub ch: f64,
+    #[serde(default = "one")]
+    pub chca: f64,
+}
+
+fn one() -> f64 {
+    1.0
+}
+
+impl Default for ModeWeights {
+    fn default() -> Self {
+        Self {
+            cv: 1.0,
+            ca: 1.0,
+            ct: 1.0,
+            ch: 1.0,
+            chca: 1.0,
+        }
+    }
+}
+
+impl ModeWeights {
+    fn as_array(&self) -> [f64; 5] {
+        [self.cv, self.ca, self.ct, self.ch, self.chca]
+    }
+
+    /// Index 0..5 (CV, CA, CT, CH, CHCA) drawn with these weights. Equal weights draw
+    /// exactly as the generator always did (`gen_range(0..5)`), so existing fleets keep their
+    /// bytes.
+    fn draw(&self, rng: &mut StdRng) -> usize {
+        let w = self.as_array();
+        if w.iter().all(|&x| x == w[0]) {
+            // i32, as the generator always drew it (a usize draw takes other random bits).
+            return rng.gen_range(0i32..5).unsigned_abs() as usize;
+        }
+        let total: f64 = w.iter().sum();
+        let mut u = rng.gen::<f64>() * total;
+        for (i, x) in w.iter().enumerate() {
+            if u < *x {
+                return i;
+            }
+            u -= x;
+        }
+        4
+    }
 }
 
 /// Bounds the fleet generator keeps its aircraft within (an airliner's envelope).
@@ -484,6 +547,13 @@ pub fn fleet(spec: &FleetSpec) -> Result<Scenario, SimError> {
         -180.0,
         180.0,
     )?;
+    let w = spec.mode_weights.as_array();
+    if w.iter().any(|x| !(x.is_finite() && *x >= 0.0)) || w.iter().sum::<f64>() <= 0.0 {
+        return Err(invalid(
+            "fleet.mode_weights",
+            format!("must be finite, >= 0, with a positive sum, got {w:?}"),
+        ));
+    }
     let mut rng = StdRng::seed_from_u64(spec.seed);
     let mut used = HashSet::with_capacity(spec.aircraft);
     let mut aircraft = Vec::with_capacity(spec.aircraft);
@@ -517,7 +587,7 @@ pub fn fleet(spec: &FleetSpec) -> Result<Scenario, SimError> {
                 *alt += vz * d;
                 vz
             };
-            let seg = match rng.gen_range(0..5) {
+            let seg = match spec.mode_weights.draw(&mut rng) {
                 0 => Segment::Cv { duration_s: d },
                 1 => Segment::Ca {
                     duration_s: d,
@@ -768,6 +838,7 @@ segments = [
             radius_km: 150.0,
             duration_s: 1800.0,
             seed: 7,
+            mode_weights: ModeWeights::default(),
         };
         let s = fleet(&spec).unwrap();
         let plans = s.plan().unwrap();
@@ -822,5 +893,52 @@ segments = [
             }),
             "fleet.duration_s: must be > 0, got -1"
         );
+        assert!(bad(FleetSpec {
+            mode_weights: ModeWeights {
+                cv: -1.0,
+                ..ModeWeights::default()
+            },
+            ..spec
+        })
+        .starts_with("fleet.mode_weights: "));
+    }
+
+    #[test]
+    fn fleet_mode_weights_shape_the_segments() {
+        let spec = FleetSpec {
+            reference: Reference {
+                lat_deg: 50.0,
+                lon_deg: 8.0,
+            },
+            aircraft: 300,
+            radius_km: 150.0,
+            duration_s: 3600.0,
+            seed: 3,
+            mode_weights: ModeWeights {
+                cv: 6.0,
+                ca: 1.0,
+                ct: 2.0,
+                ch: 1.0,
+                chca: 0.0,
+            },
+        };
+        let s = fleet(&spec).unwrap();
+        let mut time = [0.0; 5];
+        for seg in s.aircraft.iter().flat_map(|a| &a.segments) {
+            let i = match seg {
+                Segment::Cv { .. } => 0,
+                Segment::Ca { .. } => 1,
+                Segment::Ct { .. } => 2,
+                Segment::Ch { .. } => 3,
+                Segment::Chca { .. } => 4,
+                _ => unreachable!("the generator makes the five modes only"),
+            };
+            time[i] += seg.duration_s();
+        }
+        let total: f64 = time.iter().sum();
+        // Segment lengths do not depend on the mode: time shares follow the weights.
+        for (share, want) in time.iter().map(|t| t / total).zip([0.6, 0.1, 0.2, 0.1, 0.0]) {
+            assert!((share - want).abs() < 0.02, "{time:?}");
+        }
     }
 }

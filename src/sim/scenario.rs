@@ -937,7 +937,11 @@ segments = [
         }
         let total: f64 = time.iter().sum();
         // Segment lengths do not depend on the mode: time shares follow the weights.
-        for (share, want) in time.iter().map(|t| t / total).zip([0.6, 0.1, 0.2, 0.1, 0.0]) {
+        for (share, want) in time
+            .iter()
+            .map(|t| t / total)
+            .zip([0.6, 0.1, 0.2, 0.1, 0.0])
+        {
             assert!((share - want).abs() < 0.02, "{time:?}");
         }
     }

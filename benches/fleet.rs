@@ -1,5 +1,5 @@
 //! CPU per track update at fleet scale, one core, no runtime: every frame of a fleet
-//! recording through the daemon's own decoder and per-aircraft code ([`SyncPipeline`]),
+//! recording through the daemon's own decoder and per-aircraft code (`SyncPipeline`),
 //! timing each aircraft's handling of each message that updated its tracker.
 //!
 //! `FLEET_FILE=target/fleet/fleet.beast cargo bench --bench fleet` (scripts/fleet-bench.sh
@@ -7,11 +7,7 @@
 //! `FLEET_FILE` it simulates a smaller fleet (200 aircraft, 2 min) into the target directory.
 
 use adsb_tracker::config::Config;
-use adsb_tracker::daemon::aircraft::AircraftConfig;
-use adsb_tracker::daemon::pipeline::SyncPipeline;
-use adsb_tracker::decode::cpr::CprConfig;
-use adsb_tracker::decode::DecoderConfig;
-use adsb_tracker::eval::bench::read_frames;
+use adsb_tracker::eval::bench::{read_frames, sync_pipeline};
 use adsb_tracker::sim::scenario::Reference;
 use adsb_tracker::sim::{fleet, simulate, FleetSpec};
 use std::path::PathBuf;
@@ -47,24 +43,7 @@ fn main() {
     let frames = read_frames(&path, None).unwrap_or_else(|e| panic!("{e}"));
     let config = Config::default_config().unwrap_or_else(|e| panic!("{e}"));
     for algorithm in ["hybrid", "kalman-cv"] {
-        let mut tracker_config = config.tracker.clone();
-        tracker_config.algorithm = algorithm.to_string();
-        let mut pipeline = SyncPipeline::new(
-            DecoderConfig {
-                fix_single_bit: config.decode.fix_single_bit,
-                recent_address_s: config.decode.recent_address_s,
-            },
-            AircraftConfig {
-                cpr: CprConfig {
-                    pair_window_s: config.cpr.pair_window_s,
-                    max_speed_mps: config.cpr.max_speed_mps,
-                    max_surface_speed_mps: config.cpr.max_surface_speed_mps,
-                    ..CprConfig::default()
-                },
-                tracker: adsb_tracker::daemon::build_tracker,
-                tracker_config,
-            },
-        );
+        let mut pipeline = sync_pipeline(&config, algorithm);
         let mut per_update_ns: Vec<u64> = Vec::with_capacity(frames.len());
         let start = Instant::now();
         for f in &frames {

@@ -6,7 +6,6 @@ mod common;
 
 use adsb_tracker::config::{Config, FeedConfig};
 use adsb_tracker::daemon::router::Overload;
-use adsb_tracker::daemon::source::{Replay, ReplayData};
 use adsb_tracker::daemon::Source;
 use adsb_tracker::feed::Format;
 use adsb_tracker::sim::scenario::Reference;
@@ -18,8 +17,9 @@ use std::time::Duration;
 use tokio::io::AsyncWriteExt;
 
 /// A simulated fleet as a Beast file: 200 aircraft for 45 s (about 37,000 frames, 0.9 MB).
-fn fleet_file() -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("adsb-backpressure-{}", std::process::id()));
+fn fleet_file(test: &str) -> PathBuf {
+    // One directory per test: the tests of this file run in parallel in one process.
+    let dir = std::env::temp_dir().join(format!("adsb-{test}-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let spec = FleetSpec {
         reference: Reference {
@@ -121,7 +121,7 @@ fn live(config: &mut Config, addr: std::net::SocketAddr) -> Source {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_feed_faster_than_the_pipeline_loses_nothing() {
-    let path = fleet_file();
+    let path = fleet_file("lossless");
     let data = std::fs::read(&path).unwrap();
     let expected = frames_per_icao(&data);
     let total: u64 = expected.values().sum();
@@ -130,17 +130,7 @@ async fn a_feed_faster_than_the_pipeline_loses_nothing() {
 
     // The reference: the same file replayed (a replay always waits).
     let reference = {
-        let config = slow_config();
-        let source = Source::Replay(Replay {
-            data: ReplayData::File(path.clone()),
-            format: None,
-            speed: 0.0,
-            loop_: false,
-            nominal_rate_hz: config.decode.nominal_rate_hz,
-            loop_gap_s: 0.0,
-            progress: false,
-        });
-        let d = TestDaemon::start(config, source, None).await;
+        let d = TestDaemon::replay_file(path.clone(), slow_config()).await;
         let s = d.wait_replay().await;
         d.stop().await;
         s
@@ -188,12 +178,14 @@ async fn a_feed_faster_than_the_pipeline_loses_nothing() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_drop_policy_counts_exactly_what_it_sheds() {
-    let path = fleet_file();
+    let path = fleet_file("drop");
     let data = std::fs::read(&path).unwrap();
     let total: u64 = frames_per_icao(&data).values().sum();
     let (addr, sender) = serve_once(data).await;
     let mut config = slow_config();
     config.pipeline.overload = Overload::Drop;
+    // The smallest budget: a burst of the whole file cannot all be queued.
+    config.pipeline.max_queued_frames = 1024;
     let source = live(&mut config, addr);
     let d = TestDaemon::start(config, source, None).await;
     let (s, _) = wait_drained(&d, total).await;

@@ -45,6 +45,28 @@ impl SyncPipeline {
     /// given) and/or a new track state with the wall time the aircraft's handling of the
     /// message took (CPR, measurement, filter), ns.
     pub fn push(&mut self, frame: &RawFrame) -> Option<Update> {
+        let (icao, updated, cpu_ns, fix_before) = self.handle(frame)?;
+        let ac = self.aircraft.get(&icao)?;
+        let fix = ac.last_fix().filter(|f| Some(*f) != fix_before);
+        let state = if updated { ac.snapshot() } else { None };
+        (fix.is_some() || state.is_some()).then_some(Update { state, cpu_ns, fix })
+    }
+
+    /// Takes one frame without making a state: returns the wall time, ns, of the aircraft's
+    /// handling of the message (CPR, measurement, filter) when it updated the tracker.
+    /// What `benches/fleet.rs` times.
+    pub fn push_timed(&mut self, frame: &RawFrame) -> Option<u64> {
+        let (_, updated, cpu_ns, _) = self.handle(frame)?;
+        updated.then_some(cpu_ns)
+    }
+
+    /// Decodes and hands the message to its aircraft: (address, tracker updated, ns taken,
+    /// the aircraft's last fix before).
+    #[allow(clippy::type_complexity)]
+    fn handle(
+        &mut self,
+        frame: &RawFrame,
+    ) -> Option<(Icao, bool, u64, Option<(f64, f64, f64, f64)>)> {
         let d = self.decoder.decode(frame).ok()?;
         let cfg = &self.cfg;
         let ac = self
@@ -56,25 +78,7 @@ impl SyncPipeline {
         let updated = ac.handle(&d, &mut self.counts);
         let cpu_ns = start.elapsed().as_nanos() as u64;
         self.counts.flush(&self.stats);
-        let fix = ac.last_fix().filter(|f| Some(*f) != fix_before);
-        let state = if updated { ac.snapshot() } else { None };
-        (fix.is_some() || state.is_some()).then_some(Update { state, cpu_ns, fix })
-    }
-
-    /// Takes one frame without making a state: returns the wall time, ns, of the aircraft's
-    /// handling of the message (CPR, measurement, filter) when it updated the tracker.
-    /// What `benches/fleet.rs` times.
-    pub fn push_timed(&mut self, frame: &RawFrame) -> Option<u64> {
-        let d = self.decoder.decode(frame).ok()?;
-        let cfg = &self.cfg;
-        let ac = self
-            .aircraft
-            .entry(d.icao)
-            .or_insert_with(|| Aircraft::new(d.icao, cfg));
-        let start = Instant::now();
-        let updated = ac.handle(&d, &mut self.counts);
-        let cpu_ns = start.elapsed().as_nanos() as u64;
-        updated.then_some(cpu_ns)
+        Some((d.icao, updated, cpu_ns, fix_before))
     }
 
     /// Counters so far (positions, updates, errors).

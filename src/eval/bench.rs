@@ -43,11 +43,12 @@ pub fn estimate_from_state(s: &TrackState, cpu_ns: Option<u64>) -> EstimateSampl
     }
 }
 
-/// Runs `frames` through the daemon's pipeline with the tracker `algorithm`.
-pub fn track_frames(frames: &[RawFrame], config: &Config, algorithm: &str) -> RunTrace {
+/// The daemon's synchronous pipeline with `config`'s decoder and CPR settings and the tracker
+/// `algorithm` (what the bench, and `benches/fleet.rs`, drive).
+pub fn sync_pipeline(config: &Config, algorithm: &str) -> SyncPipeline {
     let mut tracker_config = config.tracker.clone();
     tracker_config.algorithm = algorithm.to_string();
-    let mut pipeline = SyncPipeline::new(
+    SyncPipeline::new(
         DecoderConfig {
             fix_single_bit: config.decode.fix_single_bit,
             recent_address_s: config.decode.recent_address_s,
@@ -62,7 +63,12 @@ pub fn track_frames(frames: &[RawFrame], config: &Config, algorithm: &str) -> Ru
             tracker: crate::daemon::build_tracker,
             tracker_config,
         },
-    );
+    )
+}
+
+/// Runs `frames` through the daemon's pipeline with the tracker `algorithm`.
+pub fn track_frames(frames: &[RawFrame], config: &Config, algorithm: &str) -> RunTrace {
+    let mut pipeline = sync_pipeline(config, algorithm);
     let mut trace = RunTrace::default();
     for f in frames {
         let Some(u) = pipeline.push(f) else { continue };

@@ -69,8 +69,13 @@ impl TestDaemon {
 
     /// Replays a fixture as fast as possible, once.
     pub async fn replay(name: &str, config: Config) -> Self {
+        Self::replay_file(fixture(name), config).await
+    }
+
+    /// Replays a file as fast as possible, once.
+    pub async fn replay_file(path: PathBuf, config: Config) -> Self {
         let source = Source::Replay(Replay {
-            data: ReplayData::File(fixture(name)),
+            data: ReplayData::File(path),
             format: None,
             speed: 0.0,
             loop_: false,

@@ -174,8 +174,11 @@ fn send_paced(
     let mut rest = frames;
     while let Some(first) = rest.first() {
         let t0 = *start_feed.get_or_insert(first.time_s);
-        let due = |t: f64| Duration::from_secs_f64(((t - t0) / speed).max(0.0));
-        let slice_end = due(first.time_s) + PACING_SLICE;
+        // Saturating: a timestamp absurdly far ahead must not panic the replay.
+        let due = |t: f64| {
+            Duration::try_from_secs_f64(((t - t0) / speed).max(0.0)).unwrap_or(Duration::MAX)
+        };
+        let slice_end = due(first.time_s).saturating_add(PACING_SLICE);
         let n = rest
             .iter()
             .position(|f| due(f.time_s) >= slice_end)
@@ -183,7 +186,10 @@ fn send_paced(
         let (now, later) = rest.split_at(n);
         let wait = due(first.time_s).saturating_sub(start_wall.elapsed());
         // Sleep in short steps so shutdown is noticed within 100 ms.
-        let wake = Instant::now() + wait;
+        // An absurd wait (a timestamp far ahead) sleeps until shutdown rather than panicking.
+        let wake = Instant::now()
+            .checked_add(wait)
+            .unwrap_or_else(|| Instant::now() + Duration::from_secs(86_400 * 365));
         while Instant::now() < wake {
             if shutdown.is_cancelled() {
                 return;
@@ -194,7 +200,9 @@ fn send_paced(
             feed: feed.clone(),
             frames: now.to_vec(),
             // Due then: a replay that falls behind its schedule shows it as ingest lag.
-            arrived: start_wall + due(first.time_s),
+            arrived: start_wall
+                .checked_add(due(first.time_s))
+                .unwrap_or_else(Instant::now),
         };
         if tx.blocking_send(batch).is_err() {
             return;

@@ -59,6 +59,10 @@ use super::{
 /// Most reports a window may span.
 pub const GATE_CAPACITY: usize = 32;
 
+/// Room past [`GATE_CAPACITY`] in the gate's sliding buffer: how many reports go between two
+/// slides.
+const GATE_SLACK: usize = 8;
+
 /// 1 knot in m/s: the resolution of ADS-B velocity components (DO-260B §2.2.3.2.6.1.7/.8,
 /// subsonic).
 pub const KNOT_MPS: f64 = 0.514_444;
@@ -388,15 +392,18 @@ fn ls_slope(points: impl Iterator<Item = (f64, f64, f64)> + Clone) -> Option<(f6
 
 /// The gate: a window of the last velocities and the state of its hysteresis.
 ///
-/// The samples live in a ring buffer written twice (at i and i + capacity), so the newest n
-/// are always one contiguous slice: every test is a plain loop over a slice, with no
-/// modulo and no copy (the gate runs on every report of every aircraft).
+/// The samples live in a sliding buffer of the capacity plus [`GATE_SLACK`]: written in
+/// order, and when the end is reached the newest capacity − 1 slide back to the front (one
+/// 2.5 KB copy every nine reports). The newest n are always one contiguous slice, so every
+/// test is a plain loop over a slice with no modulo; and the buffer is 3.2 KB where a ring
+/// written twice took 5.1 KB (the gate is per aircraft: memory at fleet scale).
 #[derive(Clone, Debug, PartialEq)]
 pub struct Gate {
     params: GateParams,
-    samples: [Sample; 2 * GATE_CAPACITY],
-    /// Ring index (0..capacity) the next sample goes to.
-    next: usize,
+    samples: [Sample; GATE_CAPACITY + GATE_SLACK],
+    /// One past the newest sample.
+    end: usize,
+    /// Samples held (at most [`GATE_CAPACITY`]), the newest `len` before `end`.
     len: usize,
     reading: GateReading,
     /// Feed time the current turn began (the last straight report before it), while a turn
@@ -409,8 +416,8 @@ impl Gate {
     pub fn new(params: GateParams) -> Self {
         Self {
             params,
-            samples: [Sample::default(); 2 * GATE_CAPACITY],
-            next: 0,
+            samples: [Sample::default(); GATE_CAPACITY + GATE_SLACK],
+            end: 0,
             len: 0,
             reading: GateReading::default(),
             turn_start_s: None,
@@ -425,7 +432,7 @@ impl Gate {
     /// Forgets every sample (a new track).
     pub fn clear(&mut self) {
         self.len = 0;
-        self.next = 0;
+        self.end = 0;
         self.reading = GateReading::default();
         self.turn_start_s = None;
     }
@@ -475,8 +482,11 @@ impl Gate {
 
     /// The newest `n` samples within `max_window_s` of the newest, oldest first.
     fn recent(&self, n: usize) -> &[Sample] {
-        let end = self.next + GATE_CAPACITY;
-        let held = self.samples.get(end - n.min(self.len)..end).unwrap_or(&[]);
+        let k = n.min(self.len);
+        let held = self
+            .samples
+            .get(self.end.saturating_sub(k)..self.end)
+            .unwrap_or(&[]);
         let Some(newest) = held.last() else {
             return held;
         };
@@ -530,12 +540,17 @@ impl Gate {
             var_u,
             measured,
         };
-        for slot in [self.next, self.next + GATE_CAPACITY] {
-            if let Some(s) = self.samples.get_mut(slot) {
-                *s = sample;
-            }
+        if self.end >= self.samples.len() {
+            // Slide: the newest capacity − 1 to the front; the oldest held one drops.
+            let keep = self.len.min(GATE_CAPACITY - 1);
+            let from = self.end - keep;
+            self.samples.copy_within(from..self.end, 0);
+            self.end = keep;
         }
-        self.next = (self.next + 1) % GATE_CAPACITY;
+        if let Some(s) = self.samples.get_mut(self.end) {
+            *s = sample;
+        }
+        self.end += 1;
         self.len = (self.len + 1).min(GATE_CAPACITY);
         self.evaluate();
         &self.reading

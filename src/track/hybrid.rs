@@ -447,6 +447,8 @@ impl HybridTracker {
                     x: x.fixed_rows::<6>(0).into_owned(),
                     p: p.fixed_view::<6, 6>(0, 0).into_owned(),
                 };
+                // Not read again before the next switch's reset: 4.3 KB less per aircraft.
+                self.imm.release();
                 self.stats.to_cv += 1;
             }
             _ => {}

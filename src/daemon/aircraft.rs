@@ -97,9 +97,8 @@ pub struct Aircraft {
     facts: AircraftFacts,
     /// Last height used for a position, m, and whether it was measured.
     last_alt_m: Option<f64>,
-    last_pos_deg: Option<(f64, f64)>,
-    /// Rotation from the local axes at `last_pos_deg` to the frame's axes, computed once per
-    /// position for the velocity reports that follow it.
+    /// Rotation from the local axes at the last accepted position to the frame's axes,
+    /// computed once per position for the velocity reports that follow it.
     last_rotation: Option<Matrix3<f64>>,
     /// The last position handed to the tracker: (t, lat, lon, height m), for evaluation.
     last_fix: Option<(f64, f64, f64, f64)>,
@@ -118,7 +117,6 @@ impl Aircraft {
                 ..AircraftFacts::default()
             },
             last_alt_m: None,
-            last_pos_deg: None,
             last_rotation: None,
             last_fix: None,
             updates: 0,
@@ -245,7 +243,6 @@ impl Aircraft {
         };
         self.facts.positions_accepted += 1;
         counts.positions_accepted += 1;
-        self.last_pos_deg = Some((lat, lon));
         // A report without altitude keeps the last height, marked as not measured.
         let (h_m, v_var) = match alt_m {
             Some(h) => {
@@ -307,41 +304,29 @@ impl Aircraft {
         })
     }
 
-    /// Writes the published snapshot into `out` (reusing its allocation): the estimate in the
-    /// track's plane and predictions at `horizons_s`. False until the tracker has an estimate.
-    pub fn publish_into(&self, out: &mut Published, horizons_s: &[f64]) -> bool {
-        let (Some(est), Some(frame)) = (self.tracker.estimate(), self.frame) else {
-            return false;
-        };
-        out.icao = self.icao;
-        out.frame = frame;
-        out.facts = self.facts;
-        out.predictions.clear();
-        out.predictions
-            .extend(horizons_s.iter().filter_map(|&dt_s| {
-                let p = self.tracker.predict(est.t_s + dt_s)?;
+    /// The published snapshot: the estimate in the track's plane and predictions at
+    /// `horizons_s`. `None` until the tracker has an estimate.
+    pub fn published(&self, horizons_s: &[f64]) -> Option<Published> {
+        let estimate = self.tracker.estimate()?;
+        let predictions = horizons_s
+            .iter()
+            .filter_map(|&dt_s| {
+                let p = self.tracker.predict(estimate.t_s + dt_s)?;
                 Some(PredictionEnu {
                     dt_s,
                     t_s: p.t_s,
                     pos_m: p.pos_m,
                     pos_sigma_m: p.pos_sigma_m(),
                 })
-            }));
-        out.estimate = est;
-        true
-    }
-
-    /// The published snapshot, newly allocated; `None` until the tracker has an estimate.
-    pub fn published(&self, horizons_s: &[f64]) -> Option<Published> {
-        let est = self.tracker.estimate()?;
-        let mut out = Published {
+            })
+            .collect();
+        Some(Published {
             icao: self.icao,
             frame: self.frame?,
-            estimate: est,
+            estimate,
             facts: self.facts,
-            predictions: Vec::new(),
-        };
-        self.publish_into(&mut out, horizons_s).then_some(out)
+            predictions,
+        })
     }
 
     /// The state with predicted positions `horizons_s` seconds ahead.
@@ -364,11 +349,6 @@ pub struct TaskContext {
     pub shutdown: CancellationToken,
     /// Horizons of the published predictions, s.
     pub prediction_horizons_s: Vec<f64>,
-    /// Frames queued for all aircraft tasks together ([`super::router::FrameBudget`]);
-    /// a task gives a batch's permits back once it has processed it.
-    pub budget: super::router::FrameBudget,
-    /// Size of `budget`, frames.
-    pub budget_frames: usize,
 }
 
 /// One channel message to an aircraft task: its messages of one feed batch.
@@ -378,7 +358,8 @@ pub struct AircraftBatch {
     /// When the feed batch they came in was read (or, for a paced replay, was due): the
     /// start of the latency the task records when it has published.
     pub arrived: Instant,
-    /// Permits of the router's frame budget this batch holds.
+    /// Permits of the frame budget this batch holds ([`Stats::reserve_frames`]), given back
+    /// once it is processed.
     pub permits: u32,
 }
 
@@ -408,7 +389,6 @@ pub async fn run_task(
                 None => break,
             },
         };
-        ctx.stats.dequeued_for_aircraft(batch.msgs.len());
         for d in &batch.msgs {
             let updated = aircraft.handle(d, &mut counts);
             if updated && ctx.updates.is_some() {
@@ -425,7 +405,7 @@ pub async fn run_task(
         // identity fields are part of the snapshot too.
         publish(&aircraft, &slot, &ctx.prediction_horizons_s);
         ctx.stats.observe_latency(batch.arrived.elapsed());
-        ctx.budget.add_permits(batch.permits as usize);
+        ctx.stats.release_frames(batch.permits);
         if let Some(tx) = &ctx.updates {
             if !lines.is_empty() && tx.send(std::mem::take(&mut lines)).await.is_err() {
                 tracing::warn!(%icao, "update writer gone");

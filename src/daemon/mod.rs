@@ -32,7 +32,7 @@ use tokio::sync::mpsc;
 use tokio_util::sync::CancellationToken;
 
 /// Capacity of the feed -> router channel, in batches (one socket read or file chunk of up to
-/// 64 KiB, ~2,800 Beast frames, each). Eight absorb a burst of ~20,000 frames while the
+/// 256 KiB, ~11,000 Beast frames, each). Eight absorb a burst of ~90,000 frames while the
 /// router is busy; more would only hold memory (a replay fills whatever it is given).
 const FEED_CHANNEL_BATCHES: usize = 8;
 
@@ -122,7 +122,10 @@ pub async fn run(
 ) -> Result<RunSummary, DaemonError> {
     let shared = Shared {
         registry: Arc::new(Registry::default()),
-        stats: Arc::new(Stats::new()),
+        stats: Arc::new(Stats::for_pipeline(
+            config.pipeline.max_queued_frames,
+            config.pipeline.max_lag_s,
+        )),
         config: Arc::new(config.clone()),
     };
     // The pipeline has its own token, a child of the caller's: the end of a replay stops the
@@ -159,12 +162,7 @@ pub async fn run(
         updates: updates_tx,
         shutdown: pipeline_stop.clone(),
         prediction_horizons_s: config.tracker.prediction_horizons_s.clone(),
-        budget: Arc::new(tokio::sync::Semaphore::new(
-            config.pipeline.max_queued_frames,
-        )),
-        budget_frames: config.pipeline.max_queued_frames,
     });
-    shared.stats.set_max_lag_s(config.pipeline.max_lag_s);
     let lag_monitor = tokio::spawn(monitor_lag(shared.stats.clone(), pipeline_stop.clone()));
 
     let (batch_tx, batch_rx) = mpsc::channel::<FrameBatch>(FEED_CHANNEL_BATCHES);
@@ -289,13 +287,14 @@ pub async fn run(
 /// How often the lag monitor looks at the ingest lag.
 const LAG_CHECK_PERIOD: Duration = Duration::from_millis(250);
 
-/// Watches the ingest lag: sets [`stats::Stats::lagging`] (which `/healthz` reads) while it
-/// is past `pipeline.max_lag_s`, with one warning when such an episode starts and one note
-/// when it ends.
+/// Watches the ingest lag and logs its episodes past `pipeline.max_lag_s`: one warning when
+/// one starts, one note with the worst lag when it ends. (`/healthz` and the stats read the
+/// lag themselves.)
 async fn monitor_lag(stats: Arc<Stats>, stop: CancellationToken) {
     let mut tick = tokio::time::interval(LAG_CHECK_PERIOD);
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
-    let mut worst_s: f64 = 0.0;
+    // The worst lag of the episode under way, if one is.
+    let mut episode_worst_s: Option<f64> = None;
     loop {
         tokio::select! {
             _ = stop.cancelled() => return,
@@ -303,28 +302,25 @@ async fn monitor_lag(stats: Arc<Stats>, stop: CancellationToken) {
         }
         let lag_s = stats.ingest_lag_s();
         let max_s = stats.max_lag_s();
-        let was = stats.lagging.load(std::sync::atomic::Ordering::Relaxed);
-        if lag_s > max_s && !was {
-            worst_s = lag_s;
-            stats
-                .lagging
-                .store(true, std::sync::atomic::Ordering::Relaxed);
-            tracing::warn!(
-                lag_s = format_args!("{lag_s:.1}"),
-                queued_frames = stats.aircraft_queued(),
-                queued_batches = stats.router_queued(),
-                "ingest is falling behind real time (pipeline.max_lag_s = {max_s} s)"
-            );
-        } else if was && lag_s <= max_s {
-            stats
-                .lagging
-                .store(false, std::sync::atomic::Ordering::Relaxed);
-            tracing::info!(
-                worst_lag_s = format_args!("{worst_s:.1}"),
-                "ingest caught up"
-            );
-        } else if was {
-            worst_s = worst_s.max(lag_s);
+        match (episode_worst_s, lag_s > max_s) {
+            (None, true) => {
+                episode_worst_s = Some(lag_s);
+                tracing::warn!(
+                    lag_s = format_args!("{lag_s:.1}"),
+                    queued_frames = stats.aircraft_queued(),
+                    queued_batches = stats.router_queued(),
+                    "ingest is falling behind real time (pipeline.max_lag_s = {max_s} s)"
+                );
+            }
+            (Some(worst_s), true) => episode_worst_s = Some(worst_s.max(lag_s)),
+            (Some(worst_s), false) => {
+                episode_worst_s = None;
+                tracing::info!(
+                    worst_lag_s = format_args!("{worst_s:.1}"),
+                    "ingest caught up"
+                );
+            }
+            (None, false) => {}
         }
     }
 }

@@ -18,7 +18,7 @@ use rustc_hash::FxHashMap;
 use serde::Deserialize;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
-use tokio::sync::{mpsc, Semaphore};
+use tokio::sync::mpsc;
 use tokio::task::JoinSet;
 
 /// How often (feed seconds) the router looks for aircraft to retire.
@@ -66,21 +66,6 @@ pub struct RouterConfig {
     pub overload: Overload,
 }
 
-/// Frames the router may have handed to aircraft tasks and not yet seen processed, all
-/// aircraft together (`pipeline.max_queued_frames`). A per-aircraft channel bound alone lets
-/// the queued memory grow with the number of aircraft (a thousand aircraft with eight full
-/// batches each held 25 MB); this bounds it for any fleet: the router takes permits from
-/// it before sending, the task gives them back when it has processed the batch.
-pub type FrameBudget = Arc<Semaphore>;
-
-/// The permits a batch of `n` messages takes (at most the whole budget, so one huge batch
-/// can always go).
-pub fn permits_for(n: usize, budget_frames: usize) -> u32 {
-    n.min(budget_frames)
-        .min(Semaphore::MAX_PERMITS)
-        .min(u32::MAX as usize) as u32
-}
-
 /// Counts and logs drops under [`Overload::Drop`]: one warning when an episode starts, then
 /// at most one per [`DROP_LOG_PERIOD`] with the count since.
 #[derive(Default)]
@@ -114,7 +99,6 @@ pub async fn run_router(
     cfg: RouterConfig,
     ctx: Arc<TaskContext>,
 ) {
-    let budget = ctx.budget.clone();
     let stats: Arc<Stats> = ctx.stats.clone();
     let mut decoder = Decoder::new(cfg.decoder);
     let mut flushed = DecodeStats::default();
@@ -202,48 +186,40 @@ pub async fn run_router(
             handle.last_seen_s = handle.last_seen_s.max(last);
             handle.last_arrival = batch.arrived;
             let n = msgs.len();
-            let permits = permits_for(n, ctx.budget_frames);
-            let msg = AircraftBatch {
-                msgs,
-                arrived: batch.arrived,
-                permits,
-            };
-            stats.queued_for_aircraft(n);
+            // Room in the frame budget (Stats::reserve_frames), then in the aircraft's
+            // channel; under the drop policy, neither is waited for.
             let sent = match cfg.overload {
                 Overload::Backpressure => tokio::select! {
                     biased;
                     _ = ctx.shutdown.cancelled() => break,
                     r = async {
-                        // Room in the global budget, then in the aircraft's channel.
-                        if let Ok(p) = budget.acquire_many(permits).await {
-                            p.forget();
-                        }
-                        handle.tx.send(msg).await
+                        let permits = stats.reserve_frames(n).await;
+                        handle.tx.send(AircraftBatch { msgs, arrived: batch.arrived, permits }).await
                     } => r.map_err(|e| mpsc::error::TrySendError::Closed(e.0)),
                 },
-                Overload::Drop => match budget.try_acquire_many(permits) {
-                    Ok(p) => {
-                        p.forget();
-                        handle.tx.try_send(msg)
-                    }
-                    Err(_) => Err(mpsc::error::TrySendError::Full(AircraftBatch {
+                Overload::Drop => match stats.try_reserve_frames(n) {
+                    Some(permits) => handle.tx.try_send(AircraftBatch {
+                        msgs,
+                        arrived: batch.arrived,
+                        permits,
+                    }),
+                    None => Err(mpsc::error::TrySendError::Full(AircraftBatch {
+                        msgs,
+                        arrived: batch.arrived,
                         permits: 0,
-                        ..msg
                     })),
                 },
             };
             match sent {
                 Ok(()) => {}
                 Err(mpsc::error::TrySendError::Full(m)) => {
-                    stats.dequeued_for_aircraft(n);
-                    budget.add_permits(m.permits as usize);
+                    stats.release_frames(m.permits);
                     drops.dropped(n as u64, &stats);
                 }
                 Err(mpsc::error::TrySendError::Closed(m)) => {
                     // The task ended (it panicked: tasks otherwise end only when the router
                     // drops them). Forget it; its next message spawns a fresh one.
-                    stats.dequeued_for_aircraft(n);
-                    budget.add_permits(m.permits as usize);
+                    stats.release_frames(m.permits);
                     tracing::error!(%icao, "aircraft task gone; its messages of this batch are lost");
                     ctx.registry.remove(icao);
                     aircraft.remove(&icao);

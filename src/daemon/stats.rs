@@ -15,9 +15,10 @@ use prometheus_client::metrics::{MetricType, TypedMetric};
 use prometheus_client::registry::Registry;
 use serde::Serialize;
 use std::collections::BTreeMap;
-use std::sync::atomic::{AtomicBool, AtomicI64, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicI64, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
+use tokio::sync::Semaphore;
 
 type Labels = Vec<(&'static str, String)>;
 
@@ -57,10 +58,8 @@ pub struct Stats {
     pub latency: LatencyHistogram,
     /// Queues and the router's progress: the ingest lag.
     routing: Arc<RoutingState>,
-    /// True while the ingest lag is past `pipeline.max_lag_s` (set by the lag monitor).
-    pub lagging: AtomicBool,
-    /// `pipeline.max_lag_s`, for `/healthz` (f64 bits).
-    max_lag_bits: AtomicU64,
+    /// `pipeline.max_lag_s`: past it the daemon is lagging (`/healthz` degraded).
+    max_lag_s: f64,
     /// Highest feed time seen, s (f64 bits).
     feed_time_bits: AtomicU64,
     /// Feed status snapshots, by feed name (set by the daemon at start).
@@ -73,9 +72,22 @@ impl Default for Stats {
     }
 }
 
+/// Frame budget of [`Stats::new`] (`pipeline.max_queued_frames`' default).
+pub const DEFAULT_MAX_QUEUED_FRAMES: usize = 32_768;
+/// Lag limit of [`Stats::new`] (`pipeline.max_lag_s`' default), s.
+pub const DEFAULT_MAX_LAG_S: f64 = 5.0;
+
 impl Stats {
-    /// All metrics, registered under the `adsb_` prefix.
+    /// All metrics, registered under the `adsb_` prefix, with the default frame budget.
     pub fn new() -> Self {
+        Self::for_pipeline(DEFAULT_MAX_QUEUED_FRAMES, DEFAULT_MAX_LAG_S)
+    }
+
+    /// All metrics, with a budget of `max_queued_frames` frames queued for aircraft tasks
+    /// ([`Stats::reserve_frames`]) and `max_lag_s` as the lag past which ingest is lagging
+    /// (`[pipeline]`).
+    pub fn for_pipeline(max_queued_frames: usize, max_lag_s: f64) -> Self {
+        let budget_frames = max_queued_frames.clamp(1, Semaphore::MAX_PERMITS);
         let mut registry = Registry::with_prefix("adsb");
         let s = Self {
             frames_in: Counter::default(),
@@ -95,13 +107,13 @@ impl Stats {
             replay_finished: std::sync::atomic::AtomicBool::new(false),
             latency: LatencyHistogram::default(),
             routing: Arc::new(RoutingState {
-                aircraft_queued: AtomicI64::new(0),
+                budget: Semaphore::new(budget_frames),
+                budget_frames,
                 router_queued: AtomicI64::new(0),
                 routing_arrival_ns: AtomicU64::new(0),
                 epoch: Instant::now(),
             }),
-            lagging: AtomicBool::new(false),
-            max_lag_bits: AtomicU64::new(5f64.to_bits()),
+            max_lag_s,
             feed_time_bits: AtomicU64::new(0f64.to_bits()),
             feeds: Mutex::new(Vec::new()),
             registry: Registry::default(),
@@ -195,23 +207,40 @@ impl Stats {
         Self { registry, ..s }
     }
 
-    /// `n` frames handed to aircraft tasks.
-    pub fn queued_for_aircraft(&self, n: usize) {
-        self.routing
-            .aircraft_queued
-            .fetch_add(n as i64, Ordering::Relaxed);
+    /// The permits a batch of `n` frames takes: `n`, at most the whole budget (so one huge
+    /// batch can always go).
+    fn permits_for(&self, n: usize) -> u32 {
+        n.min(self.routing.budget_frames).min(u32::MAX as usize) as u32
     }
 
-    /// `n` frames taken by an aircraft task.
-    pub fn dequeued_for_aircraft(&self, n: usize) {
-        self.routing
-            .aircraft_queued
-            .fetch_sub(n as i64, Ordering::Relaxed);
+    /// Waits for room for a batch of `n` frames in the budget of frames queued for aircraft
+    /// tasks; returns the permits taken, to give back with [`Stats::release_frames`] once the
+    /// batch is processed. The budget bounds the queued memory whatever the fleet's size.
+    pub async fn reserve_frames(&self, n: usize) -> u32 {
+        let permits = self.permits_for(n);
+        // The semaphore is never closed, so acquiring only waits.
+        if let Ok(p) = self.routing.budget.acquire_many(permits).await {
+            p.forget();
+        }
+        permits
     }
 
-    /// Frames queued for aircraft tasks now.
+    /// [`Stats::reserve_frames`] without waiting: `None` when there is no room.
+    pub fn try_reserve_frames(&self, n: usize) -> Option<u32> {
+        let permits = self.permits_for(n);
+        let p = self.routing.budget.try_acquire_many(permits).ok()?;
+        p.forget();
+        Some(permits)
+    }
+
+    /// Gives back the permits of a processed (or dropped) batch.
+    pub fn release_frames(&self, permits: u32) {
+        self.routing.budget.add_permits(permits as usize);
+    }
+
+    /// Frames queued for aircraft tasks now: the budget in use.
     pub fn aircraft_queued(&self) -> i64 {
-        self.routing.aircraft_queued.load(Ordering::Relaxed).max(0)
+        self.routing.queued_frames()
     }
 
     /// The router starts a batch that arrived at `arrived`, with `waiting` more batches
@@ -241,14 +270,9 @@ impl Stats {
         self.routing.lag_s()
     }
 
-    /// Sets the lag past which `/healthz` is degraded, s.
-    pub fn set_max_lag_s(&self, s: f64) {
-        self.max_lag_bits.store(s.to_bits(), Ordering::Relaxed);
-    }
-
-    /// The lag past which `/healthz` is degraded, s.
+    /// The lag past which ingest is lagging (`/healthz` degraded), s.
     pub fn max_lag_s(&self) -> f64 {
-        f64::from_bits(self.max_lag_bits.load(Ordering::Relaxed))
+        self.max_lag_s
     }
 
     /// Records the time from a batch's arrival to its publication.
@@ -318,6 +342,7 @@ impl Stats {
 
     /// The JSON view of `/api/v1/stats`.
     pub fn snapshot(&self) -> StatsSnapshot {
+        let lag_s = self.ingest_lag_s();
         let numbers = || (0..32).map(|n: u32| n.to_string());
         let by_df = read_family(&self.frames_by_df, "df", numbers());
         let by_tc = read_family(&self.frames_by_tc, "tc", numbers());
@@ -341,8 +366,8 @@ impl Stats {
             tracks_retired: self.tracks_retired.get(),
             channel_drops: self.channel_drops.get(),
             channel_dropped_messages: self.channel_dropped_messages.get(),
-            ingest_lag_s: self.ingest_lag_s(),
-            lagging: self.lagging.load(Ordering::Relaxed),
+            ingest_lag_s: lag_s,
+            lagging: lag_s > self.max_lag_s,
             queued_frames: self.aircraft_queued(),
             queued_batches: self.router_queued(),
             latency: self.latency.summary(),
@@ -526,7 +551,6 @@ pub struct LatencyHistogram {
 #[derive(Debug, Default)]
 struct LatencyInner {
     buckets: [AtomicU64; LATENCY_BUCKETS],
-    count: AtomicU64,
     sum_ns: AtomicU64,
 }
 
@@ -551,7 +575,6 @@ impl LatencyHistogram {
         if let Some(b) = self.inner.buckets.get(i) {
             b.fetch_add(1, Ordering::Relaxed);
         }
-        self.inner.count.fetch_add(1, Ordering::Relaxed);
         self.inner.sum_ns.fetch_add(
             d.as_nanos().min(u128::from(u64::MAX)) as u64,
             Ordering::Relaxed,
@@ -628,8 +651,10 @@ impl EncodeMetric for LatencyHistogram {
 /// The queues and the router's progress, shared with the gauges of `/metrics`.
 #[derive(Debug)]
 struct RoutingState {
-    /// Frames sent to aircraft tasks and not yet taken by them.
-    aircraft_queued: AtomicI64,
+    /// Frames handed to aircraft tasks and not yet processed, all aircraft together: one
+    /// permit a frame (`pipeline.max_queued_frames`).
+    budget: Semaphore,
+    budget_frames: usize,
     /// Feed batches waiting for the router (set by the router after each receive).
     router_queued: AtomicI64,
     /// Arrival of the batch the router is working on, ns after `epoch`; 0 when idle.
@@ -639,6 +664,12 @@ struct RoutingState {
 }
 
 impl RoutingState {
+    /// Permits in use.
+    fn queued_frames(&self) -> i64 {
+        self.budget_frames
+            .saturating_sub(self.budget.available_permits()) as i64
+    }
+
     fn lag_s(&self) -> f64 {
         let ns = self.routing_arrival_ns.load(Ordering::Relaxed);
         if ns == 0 {
@@ -670,9 +701,7 @@ impl EncodeMetric for LagGauge {
     fn encode(&self, mut encoder: MetricEncoder) -> Result<(), std::fmt::Error> {
         match self.0 {
             GaugeFn::Lag => encoder.encode_gauge(&self.1.lag_s()),
-            GaugeFn::AircraftQueued => {
-                encoder.encode_gauge(&self.1.aircraft_queued.load(Ordering::Relaxed).max(0))
-            }
+            GaugeFn::AircraftQueued => encoder.encode_gauge(&self.1.queued_frames()),
             GaugeFn::RouterQueued => {
                 encoder.encode_gauge(&self.1.router_queued.load(Ordering::Relaxed))
             }

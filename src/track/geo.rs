@@ -18,11 +18,12 @@ pub const WGS84_E2: f64 = WGS84_F * (2.0 - WGS84_F);
 /// X = (N + h) cos φ cos λ, Y = (N + h) cos φ sin λ, Z = (N(1 − e²) + h) sin φ,
 /// N = a / sqrt(1 − e² sin² φ).
 pub fn geodetic_to_ecef(lat_deg: f64, lon_deg: f64, h_m: f64) -> Vector3<f64> {
-    ecef_of(&Trig::of(lat_deg, lon_deg), h_m)
+    Trig::of(lat_deg, lon_deg).ecef(h_m)
 }
 
 /// Sines and cosines of a latitude and a longitude, computed once for the position and the
 /// axes at that position.
+#[derive(Clone, Copy)]
 struct Trig {
     sin_lat: f64,
     cos_lat: f64,
@@ -41,22 +42,37 @@ impl Trig {
             cos_lon,
         }
     }
-}
 
-/// [`geodetic_to_ecef`] from the point's [`Trig`].
-fn ecef_of(trig: &Trig, h_m: f64) -> Vector3<f64> {
-    let Trig {
-        sin_lat,
-        cos_lat,
-        sin_lon,
-        cos_lon,
-    } = *trig;
-    let n = WGS84_A_M / (1.0 - WGS84_E2 * sin_lat * sin_lat).sqrt();
-    Vector3::new(
-        (n + h_m) * cos_lat * cos_lon,
-        (n + h_m) * cos_lat * sin_lon,
-        (n * (1.0 - WGS84_E2) + h_m) * sin_lat,
-    )
+    /// [`geodetic_to_ecef`] of the point at height `h_m`.
+    fn ecef(&self, h_m: f64) -> Vector3<f64> {
+        let n = WGS84_A_M / (1.0 - WGS84_E2 * self.sin_lat * self.sin_lat).sqrt();
+        Vector3::new(
+            (n + h_m) * self.cos_lat * self.cos_lon,
+            (n + h_m) * self.cos_lat * self.sin_lon,
+            (n * (1.0 - WGS84_E2) + h_m) * self.sin_lat,
+        )
+    }
+
+    /// The rotation from ECEF axes to the ENU axes at the point (rows east, north, up).
+    fn enu_rotation(&self) -> Matrix3<f64> {
+        let Self {
+            sin_lat,
+            cos_lat,
+            sin_lon,
+            cos_lon,
+        } = *self;
+        Matrix3::new(
+            -sin_lon,
+            cos_lon,
+            0.0,
+            -sin_lat * cos_lon,
+            -sin_lat * sin_lon,
+            cos_lat,
+            cos_lat * cos_lon,
+            cos_lat * sin_lon,
+            sin_lat,
+        )
+    }
 }
 
 /// ECEF (m) to geodetic (degrees, degrees, metres above the ellipsoid), Vermeille's closed
@@ -86,28 +102,7 @@ pub fn ecef_to_geodetic(ecef: &Vector3<f64>) -> (f64, f64, f64) {
 
 /// Rotation from ECEF axes to the ENU axes at (lat, lon): rows are east, north, up.
 fn ecef_to_enu_rotation(lat_deg: f64, lon_deg: f64) -> Matrix3<f64> {
-    enu_rotation_of(&Trig::of(lat_deg, lon_deg))
-}
-
-/// [`ecef_to_enu_rotation`] from the point's [`Trig`].
-fn enu_rotation_of(trig: &Trig) -> Matrix3<f64> {
-    let Trig {
-        sin_lat,
-        cos_lat,
-        sin_lon,
-        cos_lon,
-    } = *trig;
-    Matrix3::new(
-        -sin_lon,
-        cos_lon,
-        0.0,
-        -sin_lat * cos_lon,
-        -sin_lat * sin_lon,
-        cos_lat,
-        cos_lat * cos_lon,
-        cos_lat * sin_lon,
-        sin_lat,
-    )
+    Trig::of(lat_deg, lon_deg).enu_rotation()
 }
 
 /// A local east-north-up tangent plane at an origin: the frame the filters run in.
@@ -153,8 +148,8 @@ impl LocalFrame {
         h_m: f64,
     ) -> (Vector3<f64>, Matrix3<f64>) {
         let trig = Trig::of(lat_deg, lon_deg);
-        let enu = self.rotation * (ecef_of(&trig, h_m) - self.origin_ecef);
-        let rotation = self.rotation * enu_rotation_of(&trig).transpose();
+        let enu = self.rotation * (trig.ecef(h_m) - self.origin_ecef);
+        let rotation = self.rotation * trig.enu_rotation().transpose();
         (enu, rotation)
     }
 

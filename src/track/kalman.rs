@@ -399,18 +399,7 @@ pub fn update_selected<const N: usize, const M: usize>(
         }
     }
     let p_new = symmetrise(&p_new);
-    if !x_new.iter().all(|v| v.is_finite()) || !is_positive_definite(&p_new) {
-        return Err(TrackError::NotPositiveDefinite);
-    }
-    let (nis, log_likelihood) = nis_and_log_likelihood(&chol, &residual)?;
-    *x = x_new;
-    *p = p_new;
-    Ok(Innovation {
-        residual,
-        s,
-        nis,
-        log_likelihood,
-    })
+    accept(x, p, x_new, p_new, &chol, residual, s)
 }
 
 /// NIS = εᵀ S⁻¹ ε = |L⁻¹ ε|² and ln N(ε; 0, S) with ln det S = 2 Σ ln Lᵢᵢ (log space).
@@ -472,10 +461,24 @@ pub fn update_dense<const N: usize, const M: usize>(
     let x_new = *x + k * residual;
     let i_kh = SMatrix::<f64, N, N>::identity() - k * h;
     let p_new = symmetrise(&(i_kh * *p * i_kh.transpose() + k * r * k.transpose()));
+    accept(x, p, x_new, p_new, &chol, residual, s)
+}
+
+/// The common end of both updates: the new state is taken only if it is finite and its
+/// covariance positive definite; then NIS and log-likelihood from S's Cholesky factor.
+fn accept<const N: usize, const M: usize>(
+    x: &mut SVector<f64, N>,
+    p: &mut SMatrix<f64, N, N>,
+    x_new: SVector<f64, N>,
+    p_new: SMatrix<f64, N, N>,
+    chol: &Cholesky<f64, nalgebra::Const<M>>,
+    residual: SVector<f64, M>,
+    s: SMatrix<f64, M, M>,
+) -> Result<Innovation<M>, TrackError> {
     if !x_new.iter().all(|v| v.is_finite()) || !is_positive_definite(&p_new) {
         return Err(TrackError::NotPositiveDefinite);
     }
-    let (nis, log_likelihood) = nis_and_log_likelihood(&chol, &residual)?;
+    let (nis, log_likelihood) = nis_and_log_likelihood(chol, &residual)?;
     *x = x_new;
     *p = p_new;
     Ok(Innovation {

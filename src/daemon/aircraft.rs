@@ -404,6 +404,7 @@ pub async fn run_task(
         // Once per batch, whether or not the tracker moved: the message counts and the
         // identity fields are part of the snapshot too.
         publish(&aircraft, &slot, &ctx.prediction_horizons_s);
+        ctx.registry.touch();
         ctx.stats.observe_latency(batch.arrived.elapsed());
         ctx.stats.release_frames(batch.permits);
         if let Some(tx) = &ctx.updates {

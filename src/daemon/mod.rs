@@ -209,15 +209,20 @@ pub async fn run(
     match &opts.source {
         Source::Feeds(feeds) => {
             for f in feeds {
-                let status = Arc::new(FeedStatus::new(f.name.as_str()));
+                let feed = TcpFeed {
+                    name: f.name.clone(),
+                    addr: f.addr.clone(),
+                    format: f.format,
+                    nominal_rate_hz: config.decode.nominal_rate_hz,
+                    silence_timeout_s: f.silence_timeout_s,
+                };
+                let status = Arc::new(FeedStatus::with_silence_timeout(
+                    f.name.as_str(),
+                    feed.silence_timeout(),
+                ));
                 shared.stats.add_feed(status.clone());
                 feed_tasks.spawn(crate::feed::tcp::run_client(
-                    TcpFeed {
-                        name: f.name.clone(),
-                        addr: f.addr.clone(),
-                        format: f.format,
-                        nominal_rate_hz: config.decode.nominal_rate_hz,
-                    },
+                    feed,
                     batch_tx.clone(),
                     status,
                     pipeline_stop.clone(),
@@ -236,16 +241,14 @@ pub async fn run(
     }
     drop(batch_tx);
 
-    // The HTTP API.
-    let server = opts.listener.map(|listener| {
-        let app = crate::api::app(shared.clone());
-        let stop = shutdown.clone();
-        tokio::spawn(async move {
-            axum::serve(listener, app)
-                .with_graceful_shutdown(async move { stop.cancelled().await })
-                .await
-        })
-    });
+    // The HTTP API, on its own runtime: no client can slow the pipeline's.
+    let server = match opts.listener {
+        Some(listener) => Some(
+            crate::api::server::spawn(listener, shared.clone(), shutdown.clone())
+                .map_err(|e| DaemonError::Io("starting the HTTP server".into(), e))?,
+        ),
+        None => None,
+    };
 
     let mut replay_stats = None;
     if let Some(task) = replay_task {
@@ -274,7 +277,7 @@ pub async fn run(
         w.await??;
     }
     if let Some(server) = server {
-        if let Err(e) = server.await? {
+        if let Err(e) = server.stopped().await {
             tracing::warn!(error = %e, "HTTP server ended with an error");
         }
     }

@@ -64,6 +64,42 @@ pub struct Stats {
     feed_time_bits: AtomicU64,
     /// Feed status snapshots, by feed name (set by the daemon at start).
     feeds: Mutex<Vec<std::sync::Arc<crate::feed::tcp::FeedStatus>>>,
+    /// The HTTP server's connection counters.
+    pub http: Arc<HttpStats>,
+}
+
+/// The HTTP server's connection counters (`/api/v1/stats` `http`, `/metrics` `adsb_http_*`).
+#[derive(Debug, Default)]
+pub struct HttpStats {
+    /// Connections open now.
+    pub connections_open: Gauge,
+    /// Connections refused with 503 at `server.max_connections`.
+    pub connections_refused: Counter,
+    /// Connections closed by a timeout (request head not sent in time, or a response
+    /// write stalled past `server.write_timeout_s`).
+    pub connections_timed_out: Counter,
+    /// `accept` failures (out of file descriptors, ...).
+    pub accept_errors: Counter,
+}
+
+/// A copy of [`HttpStats`].
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct HttpStatsSnapshot {
+    pub connections_open: i64,
+    pub connections_refused: u64,
+    pub connections_timed_out: u64,
+    pub accept_errors: u64,
+}
+
+impl HttpStats {
+    pub fn snapshot(&self) -> HttpStatsSnapshot {
+        HttpStatsSnapshot {
+            connections_open: self.connections_open.get(),
+            connections_refused: self.connections_refused.get(),
+            connections_timed_out: self.connections_timed_out.get(),
+            accept_errors: self.accept_errors.get(),
+        }
+    }
 }
 
 impl Default for Stats {
@@ -116,6 +152,7 @@ impl Stats {
             max_lag_s,
             feed_time_bits: AtomicU64::new(0f64.to_bits()),
             feeds: Mutex::new(Vec::new()),
+            http: Arc::new(HttpStats::default()),
             registry: Registry::default(),
         };
         registry.register(
@@ -203,6 +240,26 @@ impl Stats {
             "queued_batches",
             "Feed batches queued for the router",
             LagGauge(GaugeFn::RouterQueued, s.routing.clone()),
+        );
+        registry.register(
+            "http_connections_open",
+            "HTTP connections open",
+            s.http.connections_open.clone(),
+        );
+        registry.register(
+            "http_connections_refused",
+            "HTTP connections refused at server.max_connections",
+            s.http.connections_refused.clone(),
+        );
+        registry.register(
+            "http_connections_timed_out",
+            "HTTP connections closed by a header-read or write timeout",
+            s.http.connections_timed_out.clone(),
+        );
+        registry.register(
+            "http_accept_errors",
+            "HTTP accept failures",
+            s.http.accept_errors.clone(),
         );
         Self { registry, ..s }
     }
@@ -372,6 +429,7 @@ impl Stats {
             queued_batches: self.router_queued(),
             latency: self.latency.summary(),
             feeds: self.feeds(),
+            http: self.http.snapshot(),
         }
     }
 }
@@ -465,6 +523,8 @@ pub struct StatsSnapshot {
     /// Arrival-to-publication latency.
     pub latency: LatencySummary,
     pub feeds: Vec<crate::feed::tcp::FeedStatusSnapshot>,
+    /// The HTTP server's connections.
+    pub http: HttpStatsSnapshot,
 }
 
 /// Counters an aircraft (or the synchronous pipeline) keeps locally and flushes into the

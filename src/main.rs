@@ -1,7 +1,7 @@
 //! The command line: parses arguments, binds sockets, installs SIGINT/SIGTERM, and calls the
 //! library. Everything else lives in the library so tests can run it.
 
-use adsb_tracker::config::Config;
+use adsb_tracker::config::{Config, MAX_SPEED, MIN_SPEED};
 use adsb_tracker::daemon::source::{Replay, ReplayData, EMBEDDED_DEFAULT, EMBEDDED_RECEIVER};
 use adsb_tracker::daemon::{self, RunOptions, Source};
 use adsb_tracker::feed::Format;
@@ -332,8 +332,10 @@ async fn main() -> Result<()> {
             let speed = match speed.as_str() {
                 "max" => 0.0,
                 s => match s.parse::<f64>() {
-                    Ok(v) if v.is_finite() && v > 0.0 => v,
-                    _ => bail!("--speed: expected a number > 0 or `max`, got {s:?}"),
+                    Ok(v) if (MIN_SPEED..=MAX_SPEED).contains(&v) => v,
+                    _ => bail!(
+                        "--speed: expected `max` or a number within {MIN_SPEED}..={MAX_SPEED}, got {s:?}"
+                    ),
                 },
             };
             let listener = match &serve {

@@ -67,6 +67,7 @@ pub struct Limits {
     pub max_header_bytes: usize,
     pub shutdown_grace: Duration,
     pub threads: usize,
+    pub nice: i32,
 }
 
 impl Limits {
@@ -84,6 +85,7 @@ impl Limits {
             max_header_bytes: c.max_header_bytes.max(MIN_HEAD_BYTES),
             shutdown_grace: secs(c.shutdown_grace_s, 5),
             threads: c.threads.clamp(1, 64),
+            nice: c.nice.clamp(0, 19),
         }
     }
 }
@@ -124,12 +126,14 @@ pub fn spawn(
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(limits.threads)
         .thread_name("adsb-http")
+        .on_thread_start(move || lower_priority(limits.nice))
         .enable_all()
         .build()?;
     let (tx, done) = tokio::sync::oneshot::channel();
     let thread = std::thread::Builder::new()
         .name("adsb-http-main".into())
         .spawn(move || {
+            lower_priority(limits.nice);
             let result = runtime.block_on(async move {
                 let listener = TcpListener::from_std(listener)?;
                 serve(listener, shared, limits, shutdown).await;
@@ -143,6 +147,30 @@ pub fn spawn(
         done,
         thread: Some(thread),
     })
+}
+
+/// Adds `nice` to the calling thread's niceness (Linux: setpriority on a thread id affects
+/// that thread only). A failure (a container that forbids it) is logged and harmless.
+fn lower_priority(nice: i32) {
+    if nice == 0 {
+        return;
+    }
+    #[cfg(target_os = "linux")]
+    {
+        // SAFETY: gettid has no preconditions; getpriority/setpriority read and set the
+        // scheduling priority of the thread `tid` (ours) and touch no memory of ours.
+        let ok = unsafe {
+            let tid = libc::syscall(libc::SYS_gettid) as libc::id_t;
+            let current = libc::getpriority(libc::PRIO_PROCESS, tid);
+            libc::setpriority(libc::PRIO_PROCESS, tid, (current + nice).min(19)) == 0
+        };
+        if !ok {
+            tracing::debug!(
+                error = %io::Error::last_os_error(),
+                "could not lower the HTTP threads' priority (server.nice)"
+            );
+        }
+    }
 }
 
 /// The accept loop, then the graceful shutdown with its deadline.

@@ -141,6 +141,8 @@ pub struct ServerConfig {
     pub tracks_cache_ms: u64,
     /// Worker threads of the server's runtime.
     pub threads: usize,
+    /// Niceness added to the server's threads.
+    pub nice: i32,
 }
 
 #[derive(Clone, Copy, Debug, Deserialize, PartialEq)]
@@ -299,6 +301,7 @@ impl Config {
         seconds_within("server.shutdown_grace_s", s.shutdown_grace_s, 0.0, 600.0)?;
         int_within("server.tracks_cache_ms", s.tracks_cache_ms, 0, 10_000)?;
         int_within("server.threads", s.threads, 1, 64)?;
+        int_within("server.nice", s.nice, 0, 19)?;
         if let Some(r) = self.receiver {
             if !(-90.0..=90.0).contains(&r.lat_deg) {
                 return Err(bad("receiver.lat_deg", "must be within -90..90"));
@@ -503,8 +506,64 @@ mod tests {
                 "[tracker]\nchannel_capacity = 2305843009213693952\n",
                 "tracker.channel_capacity",
             ),
+            // Issue 11, row 6: values that panicked, overflowed or waited forever.
+            ("[replay]\nspeed = 1e-300\n", "replay.speed"),
+            ("[replay]\nspeed = 1e300\n", "replay.speed"),
+            ("[tracker]\nretire_after_s = 2e19\n", "tracker.retire_after_s"),
+            ("[tracker]\nmax_gap_s = 1e308\n", "tracker.max_gap_s"),
+            ("[pipeline]\nmax_queued_frames = 0\n", "pipeline.max_queued_frames"),
+            (
+                "[pipeline]\nmax_queued_frames = 9223372036854775807\n",
+                "pipeline.max_queued_frames",
+            ),
+            ("[decode]\nnominal_rate_hz = 1e-300\n", "decode.nominal_rate_hz"),
+            ("[cpr]\npair_window_s = inf\n", "cpr.pair_window_s"),
+            ("[server]\nmax_connections = 0\n", "server.max_connections"),
+            ("[server]\nheader_read_timeout_s = 1e30\n", "server.header_read_timeout_s"),
+            ("[server]\nwrite_timeout_s = nan\n", "server.write_timeout_s"),
+            ("[server]\nmax_header_bytes = 100\n", "server.max_header_bytes"),
+            ("[server]\nshutdown_grace_s = -1.0\n", "server.shutdown_grace_s"),
+            ("[server]\nthreads = 0\n", "server.threads"),
+            ("[server]\nnice = 20\n", "server.nice"),
+            ("[server]\ntracks_cache_ms = 99999999\n", "server.tracks_cache_ms"),
+            // Row 12: feeds refused at start, not failing forever after.
+            (
+                "[[feeds]]\nname = \"a\"\naddr = \"127.0.0.1:99999\"\nformat = \"beast\"\n",
+                "feeds[0].addr",
+            ),
+            (
+                "[[feeds]]\nname = \"a\"\naddr = \":30005\"\nformat = \"beast\"\n",
+                "feeds[0].addr",
+            ),
+            (
+                "[[feeds]]\nname = \"\"\naddr = \"127.0.0.1:30005\"\nformat = \"beast\"\n",
+                "feeds[0].name",
+            ),
+            (
+                "[[feeds]]\nname = \"a\"\naddr = \"h:1\"\nformat = \"beast\"\n\
+                 [[feeds]]\nname = \"a\"\naddr = \"h:2\"\nformat = \"avr\"\n",
+                "feeds[1].name",
+            ),
+            (
+                "[[feeds]]\nname = \"a\"\naddr = \"h:1\"\nformat = \"beast\"\nsilence_timeout_s = 0.0\n",
+                "feeds[0].silence_timeout_s",
+            ),
         ];
         assert_refused_naming(&cases);
+    }
+
+    #[test]
+    fn feed_addresses_of_every_kind_are_accepted() {
+        for addr in [
+            "127.0.0.1:30005",
+            "localhost:30005",
+            "[::1]:30005",
+            "feeder.example:1",
+        ] {
+            let text = format!("[[feeds]]\nname = \"a\"\naddr = \"{addr}\"\nformat = \"beast\"\n");
+            let c = Config::from_toml_str(&text).unwrap_or_else(|e| panic!("{addr}: {e}"));
+            assert_eq!(c.feeds[0].silence_timeout_s, DEFAULT_SILENCE_TIMEOUT_S);
+        }
     }
 
     #[test]

@@ -401,7 +401,11 @@ async fn healthz(State(shared): State<Shared>) -> Response {
     let feeds = shared.stats.feeds();
     let feeds_down = feeds.iter().any(|f| f.silent);
     let lag_s = shared.stats.ingest_lag_s();
-    let degraded = feeds_down || lag_s > shared.stats.max_lag_s();
+    let failed = shared
+        .stats
+        .pipeline_failed
+        .load(std::sync::atomic::Ordering::Acquire);
+    let degraded = failed || feeds_down || lag_s > shared.stats.max_lag_s();
     let body = Health {
         status: if degraded { "degraded" } else { "ok" },
         feed_time: shared.stats.feed_time_s(),

@@ -14,10 +14,11 @@ pub const DEFAULT_TOML: &str = include_str!("../../config/default.toml");
 /// Why a configuration was refused.
 #[derive(Debug, thiserror::Error)]
 pub enum ConfigError {
-    #[error("cannot read {path}: {source}")]
+    /// (The I/O error is part of the message, not a separate cause: said once.)
+    #[error("cannot read {path}: {error}")]
     Read {
         path: PathBuf,
-        source: std::io::Error,
+        error: std::io::Error,
     },
     /// TOML syntax or a value of the wrong type; the message names the key.
     #[error("{0}")]
@@ -42,7 +43,25 @@ fn seconds_within(key: &str, v: f64, lo: f64, hi: f64) -> Result<(), ConfigError
     if v.is_finite() && (lo..=hi).contains(&v) {
         Ok(())
     } else {
-        Err(bad(key, format!("must be within {lo}..={hi}, got {v}")))
+        Err(bad(
+            key,
+            format!("must be within {lo}..={hi}, got {}", Short(v)),
+        ))
+    }
+}
+
+/// A number for a message: plain when short, in scientific notation when plain would be
+/// long (f64::MAX is 309 digits plain).
+pub struct Short(pub f64);
+
+impl std::fmt::Display for Short {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let a = self.0.abs();
+        if self.0.is_finite() && a != 0.0 && !(1e-4..1e9).contains(&a) {
+            write!(f, "{:e}", self.0)
+        } else {
+            write!(f, "{}", self.0)
+        }
     }
 }
 
@@ -257,9 +276,9 @@ impl Config {
 
     /// Reads and validates a file.
     pub fn load(path: &Path) -> Result<Self, ConfigError> {
-        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+        let text = std::fs::read_to_string(path).map_err(|error| ConfigError::Read {
             path: path.to_path_buf(),
-            source,
+            error,
         })?;
         Self::from_toml_str(&text)
     }
@@ -272,7 +291,10 @@ impl Config {
             if v.is_finite() && v > 0.0 {
                 Ok(())
             } else {
-                Err(bad(key, format!("must be a finite number > 0, got {v}")))
+                Err(bad(
+                    key,
+                    format!("must be a finite number > 0, got {}", Short(v)),
+                ))
             }
         }
         let s = &self.server;
@@ -348,7 +370,7 @@ impl Config {
                         "replay.speed",
                         format!(
                             "must be 0 (as fast as possible) or within {MIN_SPEED}..={MAX_SPEED}, got {}",
-                            self.replay.speed
+                            Short(self.replay.speed)
                         ),
                     )
                 },
@@ -397,7 +419,7 @@ impl Config {
             if !(h.is_finite() && *h > 0.0 && *h <= 3600.0) {
                 return Err(bad(
                     &format!("tracker.prediction_horizons_s[{i}]"),
-                    format!("must be within (0, 3600] s, got {h}"),
+                    format!("must be within (0, 3600] s, got {}", Short(*h)),
                 ));
             }
         }
@@ -415,7 +437,7 @@ impl Config {
                 "pipeline.max_lag_s",
                 format!(
                     "must be within (0, 86400] s, got {}",
-                    self.pipeline.max_lag_s
+                    Short(self.pipeline.max_lag_s)
                 ),
             ));
         }
@@ -550,6 +572,17 @@ mod tests {
             ),
         ];
         assert_refused_naming(&cases);
+    }
+
+    #[test]
+    fn huge_numbers_are_printed_short() {
+        let err = Config::from_toml_str("[tracker]\nretire_after_s = 1.7976931348623157e308\n")
+            .unwrap_err()
+            .to_string();
+        assert!(err.ends_with("got 1.7976931348623157e308"), "{err}");
+        assert_eq!(Short(2.5).to_string(), "2.5");
+        assert_eq!(Short(1e-300).to_string(), "1e-300");
+        assert_eq!(Short(f64::INFINITY).to_string(), "inf");
     }
 
     #[test]

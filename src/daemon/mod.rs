@@ -60,12 +60,29 @@ pub struct RunOptions {
 /// Why the daemon stopped with an error.
 #[derive(Debug, thiserror::Error)]
 pub enum DaemonError {
+    /// (Each variant says its cause in its message, and has no separate `source`: an error
+    /// chain printed in full says each thing once.)
     #[error("replay: {0}")]
-    Replay(#[from] crate::feed::FeedError),
+    Replay(crate::feed::FeedError),
     #[error("{0}: {1}")]
     Io(String, std::io::Error),
     #[error("a daemon task failed: {0}")]
-    Join(#[from] tokio::task::JoinError),
+    Join(tokio::task::JoinError),
+    /// A task that must run until shutdown ended before it.
+    #[error("{0}")]
+    Died(String),
+}
+
+impl From<crate::feed::FeedError> for DaemonError {
+    fn from(e: crate::feed::FeedError) -> Self {
+        Self::Replay(e)
+    }
+}
+
+impl From<tokio::task::JoinError> for DaemonError {
+    fn from(e: tokio::task::JoinError) -> Self {
+        Self::Join(e)
+    }
 }
 
 /// What a finished run saw.
@@ -266,9 +283,35 @@ pub async fn run(
             shutdown.cancelled().await;
         }
     } else {
-        shutdown.cancelled().await;
+        // Live: the router and the feed clients run until shutdown. One that ends before
+        // has died (a panic): serving a dead pipeline with a healthy /healthz would hide
+        // it, so the daemon stops with an error (a non-zero exit for its supervisor).
+        let mut router = router;
+        let died = tokio::select! {
+            _ = shutdown.cancelled() => None,
+            r = &mut router => Some(match r {
+                Err(e) => format!("the router task failed: {e}"),
+                Ok(()) => "the router task ended".to_string(),
+            }),
+            Some(r) = feed_tasks.join_next(), if !feed_tasks.is_empty() => Some(match r {
+                Err(e) => format!("a feed task failed: {e}"),
+                Ok(()) => "a feed task ended".to_string(),
+            }),
+        };
         pipeline_stop.cancel();
         while feed_tasks.join_next().await.is_some() {}
+        if let Some(why) = died {
+            tracing::error!("{why}: stopping the daemon");
+            shared
+                .stats
+                .pipeline_failed
+                .store(true, std::sync::atomic::Ordering::Release);
+            shutdown.cancel();
+            if let Some(server) = server {
+                let _ = server.stopped().await;
+            }
+            return Err(DaemonError::Died(why));
+        }
         router_done(router, &pipeline_stop, true).await?;
     }
     pipeline_stop.cancel();

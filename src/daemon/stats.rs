@@ -54,6 +54,9 @@ pub struct Stats {
     /// `pipeline.overload = "drop"` only (the default waits).
     /// Set once a replay has been read to its end and every aircraft task has drained.
     pub replay_finished: std::sync::atomic::AtomicBool,
+    /// Set when a task the pipeline needs died: `/healthz` answers 503 until the daemon,
+    /// which stops on it, has exited.
+    pub pipeline_failed: std::sync::atomic::AtomicBool,
     /// Time from a feed batch's arrival to its aircraft's published snapshot.
     pub latency: LatencyHistogram,
     /// Queues and the router's progress: the ingest lag.
@@ -141,6 +144,7 @@ impl Stats {
             channel_drops: Counter::default(),
             channel_dropped_messages: Counter::default(),
             replay_finished: std::sync::atomic::AtomicBool::new(false),
+            pipeline_failed: std::sync::atomic::AtomicBool::new(false),
             latency: LatencyHistogram::default(),
             routing: Arc::new(RoutingState {
                 budget: Semaphore::new(budget_frames),

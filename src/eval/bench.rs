@@ -136,7 +136,7 @@ pub fn monte_carlo(
 ) -> Result<Experiment, EvalError> {
     std::fs::create_dir_all(work_dir).map_err(|source| EvalError::Read {
         path: work_dir.display().to_string(),
-        source,
+        error: source,
     })?;
     let mut merged: Vec<Scores> = vec![Scores::default(); trackers.len()];
     let mut first_truth = BTreeMap::new();

@@ -288,6 +288,7 @@ pub async fn run(
         // it, so the daemon stops with an error (a non-zero exit for its supervisor).
         let mut router = router;
         let died = tokio::select! {
+            biased;
             _ = shutdown.cancelled() => None,
             r = &mut router => Some(match r {
                 Err(e) => format!("the router task failed: {e}"),
@@ -298,6 +299,8 @@ pub async fn run(
                 Ok(()) => "a feed task ended".to_string(),
             }),
         };
+        // A task that ended because shutdown began (its token is a child of ours) did not die.
+        let died = died.filter(|_| !shutdown.is_cancelled());
         pipeline_stop.cancel();
         while feed_tasks.join_next().await.is_some() {}
         if let Some(why) = died {

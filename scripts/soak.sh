@@ -7,4 +7,4 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 SOAK_WAVES=${1:-2000} SOAK_VERBOSE=1 cargo test --release --locked --test soak -- --nocapture 2>&1 \
-  | grep -E '^(wave [0-9]*[05]00:|soak:|test result)'
+  | grep -E -A3 '^(wave [0-9]*[05]00:|soak:|test result)|panicked'

@@ -229,14 +229,50 @@ fn tracks_body<'a>(time: f64, tracks: impl IntoIterator<Item = &'a TrackState>) 
     Bytes::from(serde_json::to_vec(&body).unwrap_or_default())
 }
 
-/// A JSON body already serialised.
-fn json_bytes(body: Bytes) -> Response {
+/// Bytes of a large body handed to hyper at a time. hyper asks for the next slice only when
+/// its write buffer has room and yields after a few writes, so a connection task writes at
+/// most a few slices per turn: hundreds of clients downloading the track list take turns
+/// in small steps, and a small request (`/healthz`) waits for a turn of each at most.
+const SLICE_BYTES: usize = 16 * 1024;
+
+/// A shared, already serialised body sent in [`SLICE_BYTES`] slices (zero-copy).
+struct Sliced {
+    rest: Bytes,
+}
+
+impl http_body::Body for Sliced {
+    type Data = Bytes;
+    type Error = std::convert::Infallible;
+
+    fn poll_frame(
+        mut self: std::pin::Pin<&mut Self>,
+        _cx: &mut std::task::Context<'_>,
+    ) -> std::task::Poll<Option<Result<http_body::Frame<Bytes>, Self::Error>>> {
+        if self.rest.is_empty() {
+            return std::task::Poll::Ready(None);
+        }
+        let n = self.rest.len().min(SLICE_BYTES);
+        let slice = self.rest.split_to(n);
+        std::task::Poll::Ready(Some(Ok(http_body::Frame::data(slice))))
+    }
+
+    fn is_end_stream(&self) -> bool {
+        self.rest.is_empty()
+    }
+
+    fn size_hint(&self) -> http_body::SizeHint {
+        http_body::SizeHint::with_exact(self.rest.len() as u64)
+    }
+}
+
+/// A JSON body already serialised, sent in slices.
+fn json_sliced(body: Bytes) -> Response {
     (
         [(
             header::CONTENT_TYPE,
             HeaderValue::from_static("application/json"),
         )],
-        body,
+        Body::new(Sliced { rest: body }),
     )
         .into_response()
 }
@@ -322,14 +358,14 @@ async fn tracks(
         .transpose()?;
     let cached = api.tracks.get(&api.shared).await?;
     if bbox.is_none() && modes.is_none() {
-        return Ok(json_bytes(cached.body.clone()));
+        return Ok(json_sliced(cached.body.clone()));
     }
     let selected = cached
         .tracks
         .iter()
         .filter(|t| bbox.is_none_or(|b| b.contains(t.lat, t.lon)))
         .filter(|t| modes.as_ref().is_none_or(|m| m.contains(&t.mode)));
-    Ok(json_bytes(tracks_body(cached.time, selected)))
+    Ok(json_sliced(tracks_body(cached.time, selected)))
 }
 
 /// The `{icao}` of a path: a 400 `{"error"}` for anything but six hex digits, bad

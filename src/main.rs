@@ -78,7 +78,8 @@ enum Command {
     Evaluate {
         #[arg(long, conflicts_with_all = ["truth", "tracks"])]
         scenario: Option<String>,
-        #[arg(long, default_value_t = 100)]
+        /// Monte Carlo runs, 1..=100000.
+        #[arg(long, default_value_t = 100, value_parser = clap::value_parser!(u64).range(1..=100_000))]
         runs: u64,
         /// Comma-separated tracker names (`--tracker NAME` for one).
         #[arg(long, alias = "tracker", default_value = "hybrid,kalman-cv,imm")]

@@ -143,7 +143,7 @@ pub fn monte_carlo(
     let mut first_traces = Vec::new();
     for run in 0..runs {
         let prefix: PathBuf = work_dir.join(format!("run{run}"));
-        let summary = crate::sim::simulate(scenario, seed + run, &prefix)
+        let summary = crate::sim::simulate(scenario, seed.wrapping_add(run), &prefix)
             .map_err(|e| EvalError::Other(e.to_string()))?;
         let frames = read_frames(&summary.beast_path, Some(Format::Beast))?;
         let truth_text = read(&summary.truth_path)?;

@@ -108,6 +108,9 @@ done
 echo "fuzz: seeds $(du -sh "$SEEDS" | cut -f1) ($(find "$SEEDS" -type f | wc -l) files)" >&2
 
 # ---- build once, then run ---------------------------------------------------------------
+# cargo-fuzz has no --locked: fetching with it first fails if fuzz/Cargo.lock is stale (it
+# must keep the yanked deku 0.19.0 of the main lock), and the build then uses it as is.
+cargo fetch --locked --manifest-path fuzz/Cargo.toml
 cargo fuzz build "${FUZZ_FLAGS[@]}"
 
 failed=()

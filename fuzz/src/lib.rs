@@ -50,9 +50,10 @@ pub fn pieces(data: &[u8], seed: u8) -> Vec<&[u8]> {
     if seed == 0 || data.is_empty() {
         return vec![data];
     }
-    // At most ~512 reads: a text parser rescans an unterminated line on every read, and
-    // single-byte reads of a 40 KB input would spend the fuzzer's time on that alone.
-    let limit = [1usize, 2, 5, 13, 64, 300, 1500][usize::from(seed % 7)].max(data.len() / 256);
+    // About 128 reads at most: a text parser rescans an unterminated line on every read,
+    // and single-byte reads of a long input spent the fuzzer's time on that alone (the cut
+    // points are random, so every position is still a cut now and then).
+    let limit = [1usize, 2, 5, 13, 64, 300, 1500][usize::from(seed % 7)].max(data.len() / 64);
     let mut state = u32::from(seed).wrapping_mul(0x9E37_79B9) | 1;
     let mut out = Vec::new();
     let mut rest = data;

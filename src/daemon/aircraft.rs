@@ -209,6 +209,9 @@ impl Aircraft {
             return false;
         };
         match self.tracker.update(&m) {
+            // A report without a position long after the track's last one ends the track
+            // (every tracker's `max_gap_s` rule) rather than updating it: no estimate left.
+            Ok(()) if m.position.is_none() && self.tracker.estimate().is_none() => false,
             Ok(()) => {
                 self.updates += 1;
                 counts.track_updates += 1;

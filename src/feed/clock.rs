@@ -20,10 +20,12 @@
 //!   times: a gap keeps the elapsed time, a new time base continues from the last time.
 //! - A frame that fits the current time again refutes the candidate: the held frames were
 //!   outliers. Their content is good (CRC-checked), only their stamp is not, so they are
-//!   released with the current time, counted in [`FeedClock::outliers`], and feed time never
-//!   moved. (Before the stream has any time there is none to give them: they are dropped,
-//!   counted the same.) The end of the stream confirms nothing: a candidate still waiting
-//!   then is refuted (or, if it is the stream's only time, taken).
+//!   released in their place, halfway between the frames around them (or at the current
+//!   time), counted in [`FeedClock::outliers`], and feed time never moved. (Before the stream
+//!   has any time there is none to give them: they are dropped, counted the same.) A frame far
+//!   from both the candidate and the current time while the candidate waits is an outlier
+//!   too. The end of the stream confirms nothing: a candidate still waiting then is refuted
+//!   (or, if it is the stream's only time, taken).
 //! - A unix timestamp that is not finite, negative or past [`MAX_UNIX_S`] (year 2200) is no
 //!   time at all: the frame is dropped and counted in [`FeedClock::bad_timestamps`].
 //!
@@ -70,6 +72,15 @@ pub const GAP_CONFIRM_FRAMES: usize = 2;
 /// such a step moves every later frame, so it takes more than a chance pair to confirm it,
 /// while a busy feed delivers four frames in milliseconds.
 pub const REBASE_CONFIRM_FRAMES: usize = 4;
+
+/// A frame confirms a candidate when it follows it by up to this (or is at least twice as
+/// near it as the current time): a feed's frames follow each other within seconds, so a frame
+/// a quarter of an hour from both the candidate and the current time confirms neither.
+pub const MAX_CONFIRM_STEP_S: f64 = 60.0;
+
+/// Frames far from both a waiting candidate and the current time that are taken for
+/// outliers; one more gives the candidate up (it was not the stream's time either).
+pub const MAX_STRAY_FRAMES: usize = 2;
 
 /// Most frames held while a candidate waits: the frames it needs plus untimed frames
 /// (Mode A/C, zero counters) that arrive meanwhile and are held to keep the order. Past this,
@@ -151,6 +162,17 @@ impl Stamp for i64 {
     }
 }
 
+/// What a frame says of a waiting candidate.
+enum Verdict {
+    /// It follows the candidate: one more frame agrees with it.
+    Confirms,
+    /// It follows the current time, or the candidate was given up: the candidate's frames
+    /// were outliers.
+    Refutes,
+    /// It follows neither: an outlier itself.
+    Stray,
+}
+
 /// A step waiting for the stream to confirm it.
 #[derive(Clone, Copy, Debug)]
 struct Candidate<S> {
@@ -160,6 +182,8 @@ struct Candidate<S> {
     /// Timed frames that agree with it so far, and how many it needs.
     frames: usize,
     needed: usize,
+    /// Frames far from both it and the current time while it waited (outliers).
+    strays: usize,
 }
 
 /// The robust time base of one kind of stamp.
@@ -220,26 +244,67 @@ impl<S: Stamp> Track<S> {
     fn push(&mut self, x: S, frame: RawFrame, out: &mut Vec<RawFrame>, sh: &mut Shared) {
         if let Some(c) = self.cand.as_mut() {
             let to_cand = S::step_s(c.last, x);
-            let to_base = self.last.map(|l| S::step_s(l, x));
-            // The frame confirms the candidate when it is a step the stream could make from
-            // it, and is not an ordinary frame of the current time base, nor nearer to it.
-            let confirms = is_plausible(to_cand)
-                && match to_base {
-                    None => true,
-                    Some(b) => !is_plain(b) && (!is_plausible(b) || to_cand.abs() < b.abs()),
-                };
-            if confirms {
-                self.held.push((Some(x), frame));
-                c.frames += 1;
-                if to_cand > 0.0 {
-                    c.last = x;
+            let verdict = match self.last.map(|l| S::step_s(l, x)) {
+                // An ordinary frame of the current time: the candidate was an outlier.
+                Some(to_base) if is_plain(to_base) => Verdict::Refutes,
+                // Before the stream has a time, any step it could make confirms.
+                None if is_plausible(to_cand) => Verdict::Confirms,
+                None => Verdict::Refutes,
+                // A step the stream could make from the candidate, and a short one (a
+                // minute), or at least twice as near the candidate as the current time (a
+                // sparse feed's longer gaps).
+                Some(to_base)
+                    if is_plausible(to_cand)
+                        && (to_cand.abs() <= MAX_CONFIRM_STEP_S
+                            || to_cand.abs() <= to_base.abs() / 2.0) =>
+                {
+                    Verdict::Confirms
                 }
-                if c.frames >= c.needed {
-                    self.commit(out, sh);
+                // Nearer the current time: the candidate was an outlier.
+                Some(to_base) if is_plausible(to_base) && to_base.abs() <= to_cand.abs() => {
+                    Verdict::Refutes
                 }
-                return;
+                // Far from both: another corrupted stamp while the candidate waits, unless
+                // that keeps happening (then the candidate is given up).
+                Some(_) if c.strays < MAX_STRAY_FRAMES && self.held.len() < MAX_HELD_FRAMES => {
+                    Verdict::Stray
+                }
+                Some(_) => Verdict::Refutes,
+            };
+            match verdict {
+                Verdict::Confirms => {
+                    self.held.push((Some(x), frame));
+                    c.frames += 1;
+                    if to_cand > 0.0 {
+                        c.last = x;
+                    }
+                    if c.frames >= c.needed {
+                        self.commit(out, sh);
+                    }
+                    return;
+                }
+                Verdict::Stray => {
+                    // An outlier itself: kept in its place (it takes the time of the frame
+                    // before it) and judged no further.
+                    c.strays += 1;
+                    sh.outliers += 1;
+                    self.held.push((None, frame));
+                    return;
+                }
+                // Then the frame is judged against the current time alone.
+                Verdict::Refutes => {
+                    // The outliers were heard between the last frame and this one: when this
+                    // one is ordinary, halfway between is their best time (a tracker given
+                    // two reports at one instant sees an infinite speed).
+                    let next_s = self.last.and_then(|l| {
+                        let step_s = S::step_s(l, x);
+                        (0.0..=MAX_PLAIN_STEP_S)
+                            .contains(&step_s)
+                            .then(|| S::time_s(self.base, x))
+                    });
+                    self.refute(next_s, out, sh);
+                }
             }
-            self.refute(out, sh);
         }
         let Some(last) = self.last else {
             self.start(x, frame, REBASE_CONFIRM_FRAMES);
@@ -279,6 +344,7 @@ impl<S: Stamp> Track<S> {
             last: x,
             frames: 1,
             needed,
+            strays: 0,
         });
     }
 
@@ -308,9 +374,11 @@ impl<S: Stamp> Track<S> {
         }
     }
 
-    /// The stream did not confirm the candidate: its frames were outliers. They get the
-    /// current time (their content is good), or are dropped if the stream has no time yet.
-    fn refute(&mut self, out: &mut Vec<RawFrame>, sh: &mut Shared) {
+    /// The stream did not confirm the candidate: its frames were outliers. Their content is
+    /// good, so they are handed on in their place: halfway to `next_s` (the time of the
+    /// ordinary frame that refuted them, when there is one) or at the current time; if the
+    /// stream has no time yet, there is none to give them and they are dropped.
+    fn refute(&mut self, next_s: Option<f64>, out: &mut Vec<RawFrame>, sh: &mut Shared) {
         let Some(c) = self.cand.take() else {
             return;
         };
@@ -319,8 +387,12 @@ impl<S: Stamp> Track<S> {
             self.held.clear();
             return;
         }
+        let t_s = match next_s {
+            Some(next_s) if next_s > sh.last_s => sh.last_s + 0.5 * (next_s - sh.last_s),
+            _ => sh.last_s,
+        };
         for (_, frame) in self.held.drain(..) {
-            frame_at(frame, sh.last_s, out);
+            frame_at(frame, sh.advance(t_s), out);
         }
     }
 
@@ -330,7 +402,7 @@ impl<S: Stamp> Track<S> {
         if self.last.is_none() {
             self.commit(out, sh);
         } else {
-            self.refute(out, sh);
+            self.refute(None, out, sh);
         }
     }
 }
@@ -637,14 +709,35 @@ mod tests {
             let mut r = started(100_000);
             let bad = (100_003 + off_s) as u64 * S + S / 4;
             r.ticks(bad).ticks(100_003 * S + S / 2).ticks(100_004 * S);
-            // The outlier gets the current time, in its place; the stream goes on.
+            // The outlier keeps its place, halfway between its neighbours; the stream goes
+            // on.
             assert_eq!(
                 &r.got()[4..],
-                [(5, 100_003.0), (6, 100_003.5), (7, 100_004.0)],
+                [(5, 100_003.25), (6, 100_003.5), (7, 100_004.0)],
                 "offset {off_s}"
             );
             assert_eq!((r.clock.resets(), r.clock.outliers()), (0, 1));
         }
+    }
+
+    #[test]
+    fn outlier_while_a_gap_waits_is_an_outlier() {
+        // A sparse stretch of a real flight (afr34zg): a genuine 1.75 s gap waits for its
+        // confirmation when a frame stamped half an hour late arrives; the gap is still
+        // confirmed by the next frame, and the late stamp is an outlier in its place.
+        let mut r = Run::new();
+        r.secs(230.0).secs(231.0).secs(232.0).secs(234.744);
+        r.secs(236.492).secs(2_080.918).secs(236.984).secs(239.769);
+        assert_eq!(&r.got()[4..], [(5, 236.492), (6, 236.492), (7, 236.984)],);
+        assert_eq!((r.clock.resets(), r.clock.outliers()), (0, 1));
+        // A gap waits; two strays are outliers, a third gives the gap up (an outlier too,
+        // like the strays at the current time), and is judged on its own: refuted by the next
+        // ordinary frame, halfway to which it goes.
+        r.secs(241.0).secs(260.0);
+        r.secs(3_000.0).secs(3_100.0).secs(3_200.0).secs(242.0);
+        assert_eq!(r.clock.outliers(), 5);
+        assert_eq!(r.out.len(), 14);
+        assert_eq!(&r.times()[9..], [241.0, 241.0, 241.0, 241.5, 242.0]);
     }
 
     #[test]

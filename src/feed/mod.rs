@@ -135,8 +135,9 @@ pub struct ParseStats {
     /// the stream confirmed the step; also counts 48-bit counter wraps).
     pub clock_resets: u64,
     /// Frames whose stamp stepped away from the stream's time and that the following frames
-    /// did not confirm (a corrupted stamp): handed on with the current feed time instead, so
-    /// one bad stamp cannot move feed time ([`clock`] has the rules).
+    /// did not confirm (a corrupted stamp): handed on in their place with a time between
+    /// their neighbours' instead, so one bad stamp cannot move feed time ([`clock`] has the
+    /// rules).
     pub time_outliers: u64,
     /// Frames dropped because their unix timestamp was not finite, negative, or past the year
     /// 2200 ([`clock::MAX_UNIX_S`]).

@@ -74,6 +74,40 @@ fn nacv_bounds_mps(nac_v: u8) -> (f64, f64) {
     }
 }
 
+/// Farthest a position may be from the origin of its track's plane, m. A track's
+/// east-north-up plane is laid at its first position; an aircraft's next position farther
+/// than this is no continuation of it (a wrong first fix corrected, or a long flight gone on):
+/// the track restarts in a new plane there. 1,000 km is twice a receiver's range, more than
+/// any flight of the fixtures, and keeps the plane's tilt under 9 degrees; beyond a few
+/// thousand kilometres the plane's "down" reaches the Earth's centre, where no geodetic
+/// position exists.
+pub const MAX_TRACK_RADIUS_M: f64 = 1_000_000.0;
+
+/// Farthest a published point (estimate or prediction) may be from its track's origin, m:
+/// past this the estimate ran away (a filter diverged on absurd reports) and the point
+/// nears the Earth's centre, where the geodetic conversion has no answer.
+pub const MAX_PUBLISHED_RADIUS_M: f64 = 5_000_000.0;
+
+/// A point that can be published: finite, and not run away from its plane's origin.
+fn publishable_point(p: &Vector3<f64>) -> bool {
+    // `norm() <= max` is false for NaN too; the sum of squares of finite values can still
+    // overflow to +inf, which the comparison also refuses.
+    p.norm() <= MAX_PUBLISHED_RADIUS_M
+}
+
+/// An estimate that can be published: every number finite (the covariances' traces too,
+/// whose square roots are the published sigmas) and its position publishable.
+fn publishable(e: &crate::track::Estimate) -> bool {
+    e.t_s.is_finite()
+        && publishable_point(&e.pos_m)
+        && e.vel_mps.iter().all(|x| x.is_finite())
+        && e.pos_cov_m2.iter().all(|x| x.is_finite())
+        && e.vel_cov_m2ps2.iter().all(|x| x.is_finite())
+        && e.pos_sigma_m().is_finite()
+        && e.vel_sigma_mps().is_finite()
+        && e.mode_probabilities.iter().all(|x| x.is_finite())
+}
+
 /// Variance of a 1-kt velocity quantisation step ((1 kt)^2 / 12), and of a 64-fpm vertical step.
 const KT_QUANT_VAR: f64 = KT_TO_MPS * KT_TO_MPS / 12.0;
 const VRATE_QUANT_VAR: f64 = (64.0 * FPM_TO_MPS) * (64.0 * FPM_TO_MPS) / 12.0;
@@ -102,6 +136,8 @@ pub struct Aircraft {
     last_rotation: Option<Matrix3<f64>>,
     /// The last position handed to the tracker: (t, lat, lon, height m), for evaluation.
     last_fix: Option<(f64, f64, f64, f64)>,
+    /// The position decoder's reference resets seen so far (`CprStats::resets`).
+    cpr_resets_seen: u64,
     updates: u64,
 }
 
@@ -119,6 +155,7 @@ impl Aircraft {
             last_alt_m: None,
             last_rotation: None,
             last_fix: None,
+            cpr_resets_seen: 0,
             updates: 0,
         }
     }
@@ -246,6 +283,18 @@ impl Aircraft {
         };
         self.facts.positions_accepted += 1;
         counts.positions_accepted += 1;
+        // After repeated rejections the position decoder gives up its reference, and the
+        // position that follows is checked against nothing: the track built on the old
+        // reference cannot be continued with it (a jump of hundreds of kilometres in a
+        // second would be "measured" as a velocity of tens of km/s).
+        let cpr_resets = self.cpr.stats().resets;
+        if cpr_resets != self.cpr_resets_seen {
+            self.cpr_resets_seen = cpr_resets;
+            if self.frame.is_some() {
+                self.reset_track();
+                counts.track_resets_jump += 1;
+            }
+        }
         // A report without altitude keeps the last height, marked as not measured.
         let (h_m, v_var) = match alt_m {
             Some(h) => {
@@ -258,7 +307,14 @@ impl Aircraft {
         let frame = *self
             .frame
             .get_or_insert_with(|| LocalFrame::new(lat, lon, 0.0));
-        let (enu, rotation) = frame.to_enu_with_rotation(lat, lon, h_m);
+        let (mut enu, mut rotation) = frame.to_enu_with_rotation(lat, lon, h_m);
+        if enu.norm() > MAX_TRACK_RADIUS_M {
+            // Too far from the track's plane to continue it: a new track, in a new plane.
+            self.reset_track();
+            counts.track_resets_jump += 1;
+            let frame = *self.frame.insert(LocalFrame::new(lat, lon, 0.0));
+            (enu, rotation) = frame.to_enu_with_rotation(lat, lon, h_m);
+        }
         self.last_rotation = Some(rotation);
         let epu_m = match self.facts.nac_p {
             Some(n) => NACP_EPU_M.get(usize::from(n)).copied().unwrap_or(926.0),
@@ -309,37 +365,70 @@ impl Aircraft {
 
     /// The published snapshot: the estimate in the track's plane and predictions at
     /// `horizons_s`. `None` until the tracker has an estimate.
-    pub fn published(&self, horizons_s: &[f64]) -> Option<Published> {
+    ///
+    /// No non-finite number ever leaves the daemon: an estimate or prediction that is not
+    /// [`publishable`] (non-finite, or run away past [`MAX_PUBLISHED_RADIUS_M`], where the
+    /// geodetic conversion fails) is not published; the track is reset instead and counted in
+    /// `counts.track_resets_nonfinite`. Checked here, once per publication, rather than after
+    /// every tracker step: the estimate is made here anyway, and a step's result that is never
+    /// published harms nothing before the next check.
+    pub fn published(&mut self, horizons_s: &[f64], counts: &mut Counts) -> Option<Published> {
         let estimate = self.tracker.estimate()?;
-        let predictions = horizons_s
-            .iter()
-            .filter_map(|&dt_s| {
-                let p = self.tracker.predict(estimate.t_s + dt_s)?;
-                Some(PredictionEnu {
-                    dt_s,
-                    t_s: p.t_s,
-                    pos_m: p.pos_m,
-                    pos_sigma_m: p.pos_sigma_m(),
-                })
-            })
-            .collect();
+        let frame = self.frame?;
+        let mut predictions = Vec::with_capacity(horizons_s.len());
+        let mut ok = publishable(&estimate);
+        for &dt_s in horizons_s {
+            if !ok {
+                break;
+            }
+            let Some(p) = self.tracker.predict(estimate.t_s + dt_s) else {
+                continue;
+            };
+            let p = PredictionEnu {
+                dt_s,
+                t_s: p.t_s,
+                pos_m: p.pos_m,
+                pos_sigma_m: p.pos_sigma_m(),
+            };
+            ok = p.t_s.is_finite() && publishable_point(&p.pos_m) && p.pos_sigma_m.is_finite();
+            predictions.push(p);
+        }
+        if !ok {
+            tracing::debug!(icao = %self.icao, "non-finite or runaway estimate: track reset");
+            self.reset_track();
+            counts.track_resets_nonfinite += 1;
+            return None;
+        }
         Some(Published {
             icao: self.icao,
-            frame: self.frame?,
+            frame,
             estimate,
             facts: self.facts,
             predictions,
         })
     }
 
-    /// The state with predicted positions `horizons_s` seconds ahead.
-    pub fn snapshot_with_predictions(&self, horizons_s: &[f64]) -> Option<TrackState> {
-        self.published(horizons_s).map(|p| p.track_state())
+    /// The state with predicted positions `horizons_s` seconds ahead (checked as
+    /// [`published`](Self::published) is).
+    pub fn snapshot_with_predictions(
+        &mut self,
+        horizons_s: &[f64],
+        counts: &mut Counts,
+    ) -> Option<TrackState> {
+        self.published(horizons_s, counts).map(|p| p.track_state())
     }
 
     /// The state (no predictions), `None` until the tracker has an estimate.
-    pub fn snapshot(&self) -> Option<TrackState> {
-        self.snapshot_with_predictions(&[])
+    pub fn snapshot(&mut self, counts: &mut Counts) -> Option<TrackState> {
+        self.snapshot_with_predictions(&[], counts)
+    }
+
+    /// Drops the track (not what the aircraft said about itself, nor its CPR state): the
+    /// next position starts a new one, in a new plane.
+    fn reset_track(&mut self) {
+        self.tracker.reset();
+        self.frame = None;
+        self.last_rotation = None;
     }
 }
 
@@ -395,7 +484,7 @@ pub async fn run_task(
         for d in &batch.msgs {
             let updated = aircraft.handle(d, &mut counts);
             if updated && ctx.updates.is_some() {
-                if let Some(s) = aircraft.snapshot() {
+                if let Some(s) = aircraft.snapshot(&mut counts) {
                     // Serialising a plain struct of numbers and strings cannot fail.
                     if serde_json::to_writer(&mut lines, &s).is_ok() {
                         lines.push(b'\n');
@@ -403,11 +492,16 @@ pub async fn run_task(
                 }
             }
         }
-        counts.flush(&ctx.stats);
         // Once per batch, whether or not the tracker moved: the message counts and the
         // identity fields are part of the snapshot too.
-        publish(&aircraft, &slot, &ctx.prediction_horizons_s);
+        publish(
+            &mut aircraft,
+            &slot,
+            &ctx.prediction_horizons_s,
+            &mut counts,
+        );
         ctx.registry.touch();
+        counts.flush(&ctx.stats);
         ctx.stats.observe_latency(batch.arrived.elapsed());
         ctx.stats.release_frames(batch.permits);
         if let Some(tx) = &ctx.updates {
@@ -422,8 +516,144 @@ pub async fn run_task(
 /// Swaps the aircraft's new snapshot into its slot. The old one is freed when its last
 /// reader lets go. (Recycling it saved one allocation a batch but kept a second snapshot
 /// alive per aircraft, 650 bytes each: memory per aircraft is the scarcer resource.)
-fn publish(aircraft: &Aircraft, slot: &Slot, horizons_s: &[f64]) {
-    if let Some(p) = aircraft.published(horizons_s) {
+fn publish(aircraft: &mut Aircraft, slot: &Slot, horizons_s: &[f64], counts: &mut Counts) {
+    if let Some(p) = aircraft.published(horizons_s, counts) {
         slot.store(Some(Arc::new(p)));
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::decode::{Decoder, DecoderConfig};
+    use crate::feed::RawFrame;
+    use crate::sim::encode::airborne_position;
+    use crate::track::cv::{CvKalman, CvParams};
+    use crate::track::{Estimate, TrackError};
+
+    const ICAO: Icao = Icao(0x39_3322);
+
+    /// A CV Kalman filter whose estimate turns NaN from its third update on: what a filter
+    /// gone wrong would publish.
+    struct Poisoned {
+        inner: CvKalman,
+        updates: u32,
+    }
+
+    impl Tracker for Poisoned {
+        fn name(&self) -> &'static str {
+            "poisoned"
+        }
+        fn update(&mut self, m: &Measurement) -> Result<(), TrackError> {
+            self.updates += 1;
+            self.inner.update(m)
+        }
+        fn estimate(&self) -> Option<Estimate> {
+            let mut e = self.inner.estimate()?;
+            if self.updates >= 3 {
+                e.pos_m.x = f64::NAN;
+            }
+            Some(e)
+        }
+        fn predict(&self, t_s: f64) -> Option<Estimate> {
+            self.inner.predict(t_s)
+        }
+        fn reset(&mut self) {
+            *self = poisoned();
+        }
+    }
+
+    fn poisoned() -> Poisoned {
+        Poisoned {
+            inner: CvKalman::new(CvParams::default()),
+            updates: 0,
+        }
+    }
+
+    fn config(tracker: fn(&crate::config::TrackerConfig) -> Box<dyn Tracker>) -> AircraftConfig {
+        AircraftConfig {
+            cpr: CprConfig::default(),
+            tracker,
+            tracker_config: crate::config::Config::default_config()
+                .map(|c| c.tracker)
+                .unwrap_or_else(|e| panic!("{e}")),
+        }
+    }
+
+    /// Airborne positions every half second along a meridian from (lat, lon), at 230 m/s,
+    /// even and odd in turn, from `t0_s`: decoded as the router would.
+    fn positions(dec: &mut Decoder, t0_s: f64, lat: f64, lon: f64, n: usize) -> Vec<Decoded> {
+        (0..n)
+            .filter_map(|i| {
+                let t = t0_s + 0.5 * i as f64;
+                let lat = lat + 230.0 * 0.5 * i as f64 / 111_200.0;
+                let bytes = airborne_position(ICAO, 35_000.0, lat, lon, i % 2 == 1);
+                dec.decode(&RawFrame::new(t, &bytes, None)?).ok()
+            })
+            .collect()
+    }
+
+    fn decoder() -> Decoder {
+        Decoder::new(DecoderConfig {
+            fix_single_bit: false,
+            recent_address_s: 60.0,
+        })
+    }
+
+    #[test]
+    fn non_finite_estimate_resets_the_track_instead_of_being_published() {
+        let cfg = config(|_| Box::new(poisoned()));
+        let mut ac = Aircraft::new(ICAO, &cfg);
+        let mut counts = Counts::default();
+        let mut dec = decoder();
+        let mut published = Vec::new();
+        for d in positions(&mut dec, 100.0, 48.0, 2.0, 12) {
+            if ac.handle(&d, &mut counts) {
+                published.push(ac.published(&[30.0], &mut counts).is_some());
+            }
+        }
+        // The first pair gives the first position: 11 updates. Each third update of a fresh
+        // tracker turns it NaN: reset, not published, and the next update starts afresh.
+        assert_eq!(counts.track_updates, 11);
+        assert_eq!(
+            published,
+            [true, true, false, true, true, false, true, true, false, true, true]
+        );
+        assert_eq!(counts.track_resets_nonfinite, 3);
+        let p = ac
+            .published(&[30.0], &mut counts)
+            .unwrap_or_else(|| panic!("a fresh track"));
+        let s = p.track_state();
+        assert!(
+            (s.lat - 48.0).abs() < 0.02 && (s.lon - 2.0).abs() < 1e-3,
+            "{s:?}"
+        );
+    }
+
+    #[test]
+    fn a_position_far_from_the_track_restarts_it() {
+        let cfg = config(crate::daemon::build_tracker);
+        let mut ac = Aircraft::new(ICAO, &cfg);
+        let mut counts = Counts::default();
+        let mut dec = decoder();
+        for d in positions(&mut dec, 100.0, 48.0, 2.0, 10) {
+            ac.handle(&d, &mut counts);
+        }
+        assert_eq!(counts.track_updates, 9);
+        // An hour later, 1,450 km south-west (Lisbon): a plausible flight for the position
+        // decoder, too far for the track's plane.
+        for d in positions(&mut dec, 3_700.0, 38.7, -9.1, 10) {
+            ac.handle(&d, &mut counts);
+        }
+        assert_eq!(counts.track_resets_jump, 1);
+        let s = ac
+            .snapshot(&mut counts)
+            .unwrap_or_else(|| panic!("a track at Lisbon"));
+        assert!(
+            (s.lat - 38.72).abs() < 0.02 && (s.lon + 9.1).abs() < 1e-3,
+            "{s:?}"
+        );
+        assert!(s.ground_speed_mps < 400.0, "{s:?}");
+        assert_eq!(counts.track_resets_nonfinite, 0);
     }
 }

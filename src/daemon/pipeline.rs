@@ -46,9 +46,15 @@ impl SyncPipeline {
     /// message took (CPR, measurement, filter), ns.
     pub fn push(&mut self, frame: &RawFrame) -> Option<Update> {
         let (icao, updated, cpu_ns, fix_before) = self.handle(frame)?;
-        let ac = self.aircraft.get(&icao)?;
+        let ac = self.aircraft.get_mut(&icao)?;
         let fix = ac.last_fix().filter(|f| Some(*f) != fix_before);
-        let state = if updated { ac.snapshot() } else { None };
+        let state = if updated {
+            let state = ac.snapshot(&mut self.counts);
+            self.counts.flush(&self.stats);
+            state
+        } else {
+            None
+        };
         (fix.is_some() || state.is_some()).then_some(Update { state, cpu_ns, fix })
     }
 

@@ -42,6 +42,13 @@ pub struct Stats {
     /// Tracker updates done and refused.
     pub track_updates: Counter,
     pub track_errors: Family<Labels, Counter>,
+    /// Tracks reset because their estimate (or a prediction) was non-finite or ran away off
+    /// the globe: never published (the daemon's last line of defence).
+    pub track_resets_nonfinite: Counter,
+    /// Tracks restarted at a position that cannot continue them: too far from the track's
+    /// plane (`aircraft::MAX_TRACK_RADIUS_M`), or the first after the position decoder gave
+    /// up its reference.
+    pub track_resets_jump: Counter,
     /// Aircraft tasks alive now, spawned, retired.
     pub tracks_active: Gauge,
     pub tracks_created: Counter,
@@ -138,6 +145,8 @@ impl Stats {
             positions_rejected: Family::default(),
             track_updates: Counter::default(),
             track_errors: Family::default(),
+            track_resets_nonfinite: Counter::default(),
+            track_resets_jump: Counter::default(),
             tracks_active: Gauge::default(),
             tracks_created: Counter::default(),
             tracks_retired: Counter::default(),
@@ -199,6 +208,16 @@ impl Stats {
             "track_errors",
             "Tracker steps refused, by reason",
             s.track_errors.clone(),
+        );
+        registry.register(
+            "track_resets_nonfinite",
+            "Tracks reset because their estimate was non-finite or ran away (never published)",
+            s.track_resets_nonfinite.clone(),
+        );
+        registry.register(
+            "track_resets_jump",
+            "Tracks restarted at a position that cannot continue them",
+            s.track_resets_jump.clone(),
         );
         registry.register(
             "tracks_active",
@@ -422,6 +441,8 @@ impl Stats {
             positions_rejected: read(&self.positions_rejected, "reason", POSITION_REJECT_REASONS),
             track_updates: self.track_updates.get(),
             track_errors: read(&self.track_errors, "reason", TRACK_ERROR_REASONS),
+            track_resets_nonfinite: self.track_resets_nonfinite.get(),
+            track_resets_jump: self.track_resets_jump.get(),
             tracks_active: self.tracks_active.get(),
             tracks_created: self.tracks_created.get(),
             tracks_retired: self.tracks_retired.get(),
@@ -511,6 +532,10 @@ pub struct StatsSnapshot {
     pub positions_rejected: BTreeMap<String, u64>,
     pub track_updates: u64,
     pub track_errors: BTreeMap<String, u64>,
+    /// Tracks reset instead of publishing a non-finite or runaway estimate.
+    pub track_resets_nonfinite: u64,
+    /// Tracks restarted at a position that cannot continue them.
+    pub track_resets_jump: u64,
     pub tracks_active: i64,
     pub tracks_created: u64,
     pub tracks_retired: u64,
@@ -542,6 +567,10 @@ pub struct Counts {
     pub positions_rejected: [u64; 5],
     /// By [`TRACK_ERROR_REASONS`] index.
     pub track_errors: [u64; 3],
+    /// See [`Stats::track_resets_nonfinite`].
+    pub track_resets_nonfinite: u64,
+    /// See [`Stats::track_resets_jump`].
+    pub track_resets_jump: u64,
 }
 
 impl Counts {
@@ -578,6 +607,14 @@ impl Counts {
         }
         if self.track_updates > 0 {
             stats.track_updates.inc_by(self.track_updates);
+        }
+        if self.track_resets_nonfinite > 0 {
+            stats
+                .track_resets_nonfinite
+                .inc_by(self.track_resets_nonfinite);
+        }
+        if self.track_resets_jump > 0 {
+            stats.track_resets_jump.inc_by(self.track_resets_jump);
         }
         let labelled = |family: &Family<Labels, Counter>, names: &[&str], counts: &[u64]| {
             for (name, &n) in names.iter().zip(counts) {

@@ -150,13 +150,22 @@ impl FrameParser for BeastParser {
                 }
             }
         }
-        self.stats.frames += (out.len() - frames_before) as u64;
-        self.stats.clock_resets = self.clock.resets();
+        self.sync_stats(frames_before, out);
         pos
     }
 
+    /// Counts the tail; frames the clock holds (a time step waiting for confirmation) stay
+    /// held for the stream that follows (a reconnect).
     fn finish(&mut self, tail: &[u8]) {
         self.stats.truncated_tail_bytes += tail.len() as u64;
+    }
+
+    /// The stream ended: counts the tail and releases the frames the clock holds.
+    fn finish_into(&mut self, tail: &[u8], out: &mut Vec<RawFrame>) {
+        self.finish(tail);
+        let frames_before = out.len();
+        self.clock.flush(out);
+        self.sync_stats(frames_before, out);
     }
 
     fn stats(&self) -> &ParseStats {
@@ -165,20 +174,19 @@ impl FrameParser for BeastParser {
 }
 
 impl BeastParser {
+    /// Counts the frames added to `out` since it held `frames_before`, and copies the
+    /// clock's counters.
+    fn sync_stats(&mut self, frames_before: usize, out: &[RawFrame]) {
+        self.stats.frames += out.len().saturating_sub(frames_before) as u64;
+        self.stats.clock_resets = self.clock.resets();
+        self.stats.time_outliers = self.clock.outliers();
+    }
+
     /// Hands on one unescaped body: counter, signal, then `data` bytes.
     #[inline]
     fn emit(&mut self, body: &[u8; MAX_BODY_BYTES], data: usize, out: &mut Vec<RawFrame>) {
         let [c0, c1, c2, c3, c4, c5, signal, ..] = *body;
         let ticks = u64::from_be_bytes([0, 0, c0, c1, c2, c3, c4, c5]);
-        // Mode A/C replies carry no address and are never tracked, and dump1090 may hold
-        // them for up to a minute before sending them (mlat-client keeps their stamps out of
-        // its clock, `modes_reader.c`): one would count as a receiver restart. They get the
-        // last time and leave the clock alone.
-        let time_s = if data == 2 {
-            self.clock.last_s()
-        } else {
-            self.clock.at_ticks(ticks)
-        };
         // The last 14 bytes of the body: the data, and for shorter frames whatever followed
         // (ignored by `from_padded`).
         let Some(tail) = body.last_chunk::<MAX_FRAME_BYTES>() else {
@@ -190,8 +198,18 @@ impl BeastParser {
             7 => buf[..7].copy_from_slice(&tail[..7]),
             _ => buf = *tail,
         }
-        if let Some(frame) = RawFrame::from_padded(time_s, buf, data, Some(signal)) {
-            out.push(frame);
+        // The clock sets the time (now, or once a step in time is confirmed).
+        let Some(frame) = RawFrame::from_padded(0.0, buf, data, Some(signal)) else {
+            return;
+        };
+        // Mode A/C replies carry no address and are never tracked, and dump1090 may hold
+        // them for up to a minute before sending them (mlat-client keeps their stamps out of
+        // its clock, `modes_reader.c`): one would count as a receiver restart. They get the
+        // last time and leave the clock alone.
+        if data == 2 {
+            self.clock.push_untimed(frame, out);
+        } else {
+            self.clock.push_ticks(ticks, frame, out);
         }
     }
 }
@@ -212,9 +230,12 @@ mod tests {
         v
     }
 
+    /// Parses `buf` as a whole stream (the clock holds a stream's first frames until they
+    /// agree on the time: the end of the stream releases them).
     fn parse_all(p: &mut BeastParser, buf: &[u8]) -> (Vec<RawFrame>, usize) {
         let mut out = Vec::new();
         let used = p.parse(buf, &mut out);
+        p.finish_into(&[], &mut out);
         (out, used)
     }
 
@@ -229,11 +250,12 @@ mod tests {
         let mut body = vec![0x00, 0x00, 0x1a, 0x00, 0x00, 0x1a, 0x1a];
         body.extend_from_slice(&df17);
         let mut wire = frame(b'3', &body);
+        // The short frame's counter (one tick later) holds a 0x1a too.
         let short = [
-            0, 0, 0, 0, 0, 0x1b, 0x20, 0x5d, 0x1a, 0x40, 0xd6, 0x1a, 0x00, 0x01,
+            0, 0, 0x1a, 0, 0, 0x1b, 0x20, 0x5d, 0x1a, 0x40, 0xd6, 0x1a, 0x00, 0x01,
         ];
         wire.extend(frame(b'2', &short));
-        assert_eq!(wire.len(), 2 + 21 + 3 + 2 + 14 + 2);
+        assert_eq!(wire.len(), 2 + 21 + 3 + 2 + 14 + 3);
 
         let mut p = BeastParser::new();
         let (out, used) = parse_all(&mut p, &wire);
@@ -244,10 +266,8 @@ mod tests {
         assert_eq!(out[0].time_s, 436_207_642.0 / 12e6);
         assert_eq!(out[1].bytes(), &[0x5d, 0x1a, 0x40, 0xd6, 0x1a, 0x00, 0x01]);
         assert_eq!(out[1].signal, Some(0x20));
-        // Its counter (27 ticks) is 36 s behind the first frame's: a new time base, and the
-        // frame keeps the last time.
-        assert_eq!(out[1].time_s, out[0].time_s);
-        assert_eq!(p.stats().clock_resets, 1);
+        assert_eq!(out[1].time_s, 436_207_643.0 / 12e6);
+        assert_eq!(p.stats().clock_resets, 0);
         assert_eq!(p.stats().frames, 2);
         assert_eq!(p.stats().garbage_bytes, 0);
     }

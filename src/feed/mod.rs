@@ -131,8 +131,17 @@ pub struct ParseStats {
     pub bad_lines: u64,
     /// Beast frames with an unknown type byte or a bad escape.
     pub bad_frames: u64,
-    /// Times the feed clock stepped backwards or jumped and the time base was reset.
+    /// Times the feed clock stepped backwards or jumped and the time base was reset (once
+    /// the stream confirmed the step; also counts 48-bit counter wraps).
     pub clock_resets: u64,
+    /// Frames whose stamp stepped away from the stream's time and that the following frames
+    /// did not confirm (a corrupted stamp): handed on in their place with a time between
+    /// their neighbours' instead, so one bad stamp cannot move feed time ([`clock`] has the
+    /// rules).
+    pub time_outliers: u64,
+    /// Frames dropped because their unix timestamp was not finite, negative, or past the year
+    /// 2200 ([`clock::MAX_UNIX_S`]).
+    pub bad_timestamps: u64,
     /// Bytes of an incomplete frame left at the end of a stream.
     pub truncated_tail_bytes: u64,
 }

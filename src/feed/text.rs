@@ -80,61 +80,60 @@ impl TextParser {
         if line.is_empty() || line.first() == Some(&b'#') {
             return;
         }
-        match self.frame(line) {
-            Some(frame) => out.push(frame),
-            None => self.stats.bad_lines += 1,
+        if self.frame(line, out).is_none() {
+            self.stats.bad_lines += 1;
         }
     }
 
-    /// The frame on a trimmed, nonblank line, or `None` if the line is malformed. The clock
-    /// only moves once the whole line has been validated.
-    fn frame(&mut self, line: &[u8]) -> Option<RawFrame> {
+    /// Hands the frame on a trimmed, nonblank line to the clock, which times it into `out`
+    /// (at once, or after a time step is confirmed; a frame with an impossible timestamp is
+    /// counted there and dropped). `None` if the line is malformed: the clock only sees
+    /// wholly valid lines.
+    fn frame(&mut self, line: &[u8], out: &mut Vec<RawFrame>) -> Option<()> {
         if line.len() > MAX_LINE_BYTES {
             return None;
         }
         match self.format {
-            Format::Avr => self.avr(line),
+            Format::Avr => self.avr(line, out),
             Format::Csv => {
                 let comma = line.iter().position(|&b| b == b',')?;
                 let ts_s = parse_f64(line.get(..comma)?.trim_ascii())?;
-                self.timed(ts_s, line.get(comma + 1..)?.trim_ascii())
+                self.timed(ts_s, line.get(comma + 1..)?.trim_ascii(), out)
             }
             Format::Iso => {
                 let gap = line.iter().position(u8::is_ascii_whitespace)?;
                 let ts_s = parse_iso_utc(line.get(..gap)?)?;
-                self.timed(ts_s, line.get(gap..)?.trim_ascii())
+                self.timed(ts_s, line.get(gap..)?.trim_ascii(), out)
             }
             Format::Jsonl => {
                 let rec: JsonLine<'_> = serde_json::from_slice(line).ok()?;
-                self.timed(rec.timestamp, rec.frame.as_bytes())
+                self.timed(rec.timestamp, rec.frame.as_bytes(), out)
             }
             Format::Beast => None,
         }
     }
 
-    fn timed(&mut self, ts_s: f64, hex: &[u8]) -> Option<RawFrame> {
-        if !ts_s.is_finite() {
-            return None;
-        }
+    fn timed(&mut self, ts_s: f64, hex: &[u8], out: &mut Vec<RawFrame>) -> Option<()> {
         let (bytes, len) = frame_from_hex(hex)?;
-        let time_s = self.clock.at_seconds(ts_s);
-        RawFrame::new(time_s, bytes.get(..len)?, None)
+        let frame = RawFrame::new(0.0, bytes.get(..len)?, None)?;
+        self.clock.push_seconds(ts_s, frame, out);
+        Some(())
     }
 
     /// `*<hex>;` or `@<12 hex counter><hex>;` (dump1090/readsb raw output, port 30002).
-    fn avr(&mut self, line: &[u8]) -> Option<RawFrame> {
+    fn avr(&mut self, line: &[u8], out: &mut Vec<RawFrame>) -> Option<()> {
         let (&mark, rest) = line.split_first()?;
         let hex = rest.strip_suffix(b";")?;
         match mark {
             b'*' => {
                 let (bytes, len) = frame_from_hex(hex)?;
+                let frame = RawFrame::new(0.0, bytes.get(..len)?, None)?;
                 let pace_s = match self.nominal_rate_hz {
                     Some(rate_hz) => self.untimed_frames as f64 / rate_hz,
                     None => 0.0,
                 };
                 self.untimed_frames += 1;
-                let time_s = self.clock.at_seconds(pace_s);
-                RawFrame::new(time_s, bytes.get(..len)?, None)
+                self.clock.push_paced(pace_s, frame, out);
             }
             b'@' => {
                 let (counter, frame_hex) = hex.split_at_checked(AVR_COUNTER_DIGITS)?;
@@ -142,21 +141,24 @@ impl TextParser {
                     .iter()
                     .try_fold(0u64, |acc, &c| Some(acc << 4 | u64::from(nibble(c)?)))?;
                 let (bytes, len) = frame_from_hex(frame_hex)?;
+                let frame = RawFrame::new(0.0, bytes.get(..len)?, None)?;
                 // Mode A/C stamps do not move the clock (see `beast::BeastParser::emit`).
-                let time_s = if len == 2 {
-                    self.clock.last_s()
+                if len == 2 {
+                    self.clock.push_untimed(frame, out);
                 } else {
-                    self.clock.at_ticks(ticks)
-                };
-                RawFrame::new(time_s, bytes.get(..len)?, None)
+                    self.clock.push_ticks(ticks, frame, out);
+                }
             }
-            _ => None,
+            _ => return None,
         }
+        Some(())
     }
 
     fn sync_stats(&mut self, frames_before: usize, out: &[RawFrame]) {
         self.stats.frames += out.len().saturating_sub(frames_before) as u64;
         self.stats.clock_resets = self.clock.resets();
+        self.stats.time_outliers = self.clock.outliers();
+        self.stats.bad_timestamps = self.clock.bad_timestamps();
     }
 }
 
@@ -195,6 +197,8 @@ impl FrameParser for TextParser {
         pos
     }
 
+    /// Counts the tail; frames the clock holds (a time step waiting for confirmation) stay
+    /// held for the stream that follows (a reconnect).
     fn finish(&mut self, tail: &[u8]) {
         if !std::mem::take(&mut self.discarding) && !tail.trim_ascii().is_empty() {
             self.stats.truncated_tail_bytes += tail.len() as u64;
@@ -202,19 +206,19 @@ impl FrameParser for TextParser {
     }
 
     /// A final line without a newline is a line: parsed if complete, else a truncated tail.
+    /// Then the stream has ended: the frames the clock holds are released.
     fn finish_into(&mut self, tail: &[u8], out: &mut Vec<RawFrame>) {
-        if std::mem::take(&mut self.discarding) {
-            return;
-        }
-        let line = tail.trim_ascii();
-        if line.is_empty() || line.first() == Some(&b'#') {
-            return;
-        }
         let frames_before = out.len();
-        match self.frame(line) {
-            Some(frame) => out.push(frame),
-            None => self.stats.truncated_tail_bytes += tail.len() as u64,
+        let line = tail.trim_ascii();
+        let discarding = std::mem::take(&mut self.discarding);
+        if !discarding
+            && !line.is_empty()
+            && line.first() != Some(&b'#')
+            && self.frame(line, out).is_none()
+        {
+            self.stats.truncated_tail_bytes += tail.len() as u64;
         }
+        self.clock.flush(out);
         self.sync_stats(frames_before, out);
     }
 
@@ -376,6 +380,9 @@ mod tests {
         let mut p = TextParser::new(format, 10.0);
         let mut out = Vec::new();
         let used = p.parse(input.as_bytes(), &mut out);
+        // The end of the stream releases the first frames, which the clock holds until
+        // enough agree on the time.
+        p.finish_into(&[], &mut out);
         (out, p.stats().clone(), used)
     }
 

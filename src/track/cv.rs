@@ -280,6 +280,10 @@ fn h_block(offset: usize) -> SMatrix<f64, 3, 6> {
 }
 
 impl Tracker for CvKalman {
+    fn reset(&mut self) {
+        *self = Self::new(self.params);
+    }
+
     fn name(&self) -> &'static str {
         NAME
     }

@@ -521,6 +521,10 @@ impl HybridTracker {
 }
 
 impl Tracker for HybridTracker {
+    fn reset(&mut self) {
+        *self = Self::new(self.params);
+    }
+
     fn name(&self) -> &'static str {
         NAME
     }

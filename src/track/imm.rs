@@ -917,6 +917,10 @@ pub(crate) fn labels_of_mode(mode: ImmMode, x: &State9, axes: &AxisThresholds) -
 }
 
 impl Tracker for ImmTracker {
+    fn reset(&mut self) {
+        *self = Self::new(self.params);
+    }
+
     fn name(&self) -> &'static str {
         IMM_NAME
     }

@@ -323,6 +323,10 @@ fn horizontal<const M: usize>(inn: &Innovation<M>) -> (Vector2<f64>, Matrix2<f64
 }
 
 impl Tracker for JerkTracker {
+    fn reset(&mut self) {
+        *self = Self::new(self.params);
+    }
+
     fn name(&self) -> &'static str {
         match self.params.variant {
             JerkVariant::Jerk => NAME_JERK,

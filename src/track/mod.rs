@@ -213,6 +213,12 @@ pub trait Tracker: Send {
     /// The estimate extrapolated by the current model to `t_s` (>= the track's time), with the
     /// process noise added to its covariance; `None` before initiation.
     fn predict(&self, t_s: f64) -> Option<Estimate>;
+
+    /// Drops the track: the tracker is as new, with the same parameters, and the next report
+    /// with a position initiates a new track. The daemon's last line of defence, for an
+    /// estimate that went non-finite or left the globe, and for an aircraft that reappears
+    /// too far from where its track's plane was laid.
+    fn reset(&mut self);
 }
 
 /// The alternative trackers of papers 000, 001 and 003 by name, with default parameters:

@@ -403,6 +403,10 @@ fn criterion_and_adapt(
 }
 
 impl Tracker for SingerTracker {
+    fn reset(&mut self) {
+        *self = Self::new(self.params);
+    }
+
     fn name(&self) -> &'static str {
         if self.params.suppression {
             NAME

@@ -723,6 +723,10 @@ fn vertical_predict(x: &mut Vector2<f64>, p: &mut Matrix2<f64>, q_v: f64, dt_s: 
 }
 
 impl Tracker for Vsimm {
+    fn reset(&mut self) {
+        *self = Self::new(self.params);
+    }
+
     fn name(&self) -> &'static str {
         match self.params.variant {
             Variant::VsimmSrckf => NAME_VSIMM,

@@ -44,7 +44,7 @@ enum Command {
         #[arg(long, default_value = "auto")]
         format: String,
         /// Feed seconds per wall second, or `max`.
-        #[arg(long, default_value = "max")]
+        #[arg(long, default_value = "max", allow_negative_numbers = true)]
         speed: String,
         /// Write every track update as a JSON line.
         #[arg(long)]

@@ -389,7 +389,7 @@ impl Config {
             1e7,
         )?;
         seconds_within("cpr.pair_window_s", self.cpr.pair_window_s, 1e-3, 3600.0)?;
-        seconds_within("cpr.max_speed_mps", self.cpr.max_speed_mps, 1.0, 10_000.0)?;
+        seconds_within("cpr.max_speed_mps", self.cpr.max_speed_mps, 1.0, 100_000.0)?;
         seconds_within(
             "cpr.max_surface_speed_mps",
             self.cpr.max_surface_speed_mps,

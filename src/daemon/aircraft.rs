@@ -510,7 +510,8 @@ pub async fn run_task(
             }
         }
     }
-    ctx.stats.tracks_active.dec();
+    // `tracks_active` is the router's count: it follows the registry, which keeps serving
+    // this aircraft's last snapshot after a replay's end.
 }
 
 /// Swaps the aircraft's new snapshot into its slot. The old one is freed when its last

@@ -16,6 +16,7 @@ use crate::decode::{DecodeStats, Decoded, Decoder, DecoderConfig, Icao};
 use crate::feed::tcp::FrameBatch;
 use rustc_hash::FxHashMap;
 use serde::Deserialize;
+use std::collections::hash_map::Entry;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 use tokio::sync::mpsc;
@@ -104,6 +105,8 @@ pub async fn run_router(
     let mut flushed = DecodeStats::default();
     let mut aircraft: FxHashMap<Icao, Handle> = FxHashMap::default();
     let mut touched: Vec<Icao> = Vec::new();
+    // Aircraft retired in this batch that still have messages of it to receive.
+    let mut retiring: Vec<Handle> = Vec::new();
     let mut tasks = JoinSet::new();
     let mut next_sweep_s = f64::NEG_INFINITY;
     let mut now_s = f64::NEG_INFINITY;
@@ -131,25 +134,42 @@ pub async fn run_router(
             let Ok(d) = decoder.decode(frame) else {
                 continue;
             };
-            let handle = aircraft.entry(d.icao).or_insert_with(|| {
-                let (tx, rx) = mpsc::channel(cfg.channel_capacity);
-                let slot = ctx.registry.register(d.icao);
-                stats.tracks_created.inc();
-                stats.tracks_active.inc();
-                tasks.spawn(run_task(
-                    Aircraft::new(d.icao, &cfg.aircraft),
-                    rx,
-                    slot,
-                    ctx.clone(),
-                ));
-                Handle {
-                    tx,
-                    last_seen_s: d.time_s,
-                    last_arrival: batch.arrived,
-                    pending: Vec::new(),
-                    last_batch_len: 4,
+            let handle = match aircraft.entry(d.icao) {
+                Entry::Vacant(e) => e.insert(spawn_aircraft(
+                    d.icao,
+                    d.time_s,
+                    batch.arrived,
+                    &cfg,
+                    &ctx,
+                    &mut tasks,
+                )),
+                Entry::Occupied(mut e) => {
+                    // Silent past the retirement delay before this message (a replay that
+                    // looped, a gap in the feed): the old track is retired and this message
+                    // starts a new one, even though the sweep would keep an aircraft heard
+                    // in this batch. Its messages of the batch before the gap still go to
+                    // the old task.
+                    let h = e.get();
+                    let heard_s = h.pending.last().map_or(h.last_seen_s, |p| p.time_s);
+                    if d.time_s - heard_s > cfg.retire_after_s {
+                        tracing::debug!(icao = %d.icao, "retired after silence (seen again)");
+                        stats.tracks_retired.inc();
+                        stats.tracks_active.dec();
+                        let old = e.insert(spawn_aircraft(
+                            d.icao,
+                            d.time_s,
+                            batch.arrived,
+                            &cfg,
+                            &ctx,
+                            &mut tasks,
+                        ));
+                        if !old.pending.is_empty() {
+                            retiring.push(old);
+                        }
+                    }
+                    e.into_mut()
                 }
-            });
+            };
             if handle.pending.is_empty() {
                 touched.push(d.icao);
                 handle.pending.reserve(handle.last_batch_len);
@@ -170,60 +190,40 @@ pub async fn run_router(
                     tracing::debug!(%icao, "retired after silence");
                     ctx.registry.remove(*icao);
                     stats.tracks_retired.inc();
+                    stats.tracks_active.dec();
                 }
                 keep
             });
             next_sweep_s = now_s + SWEEP_PERIOD_S;
         }
 
+        // Retired aircraft get their last messages (then their tasks drain and end), and
+        // every aircraft heard in this batch its messages.
+        let mut stopping = false;
+        for mut old in retiring.drain(..) {
+            let sent = deliver(&mut old, batch.arrived, now_s, &cfg, &ctx, &mut drops).await;
+            if sent == Delivery::Shutdown {
+                stopping = true;
+                break;
+            }
+        }
         for icao in touched.drain(..) {
+            if stopping {
+                break;
+            }
             let Some(handle) = aircraft.get_mut(&icao) else {
                 continue;
             };
-            let msgs = std::mem::take(&mut handle.pending);
-            handle.last_batch_len = msgs.len();
-            let last = msgs.last().map_or(now_s, |d| d.time_s);
-            handle.last_seen_s = handle.last_seen_s.max(last);
-            handle.last_arrival = batch.arrived;
-            let n = msgs.len();
-            // Room in the frame budget (Stats::reserve_frames), then in the aircraft's
-            // channel; under the drop policy, neither is waited for.
-            let sent = match cfg.overload {
-                Overload::Backpressure => tokio::select! {
-                    biased;
-                    _ = ctx.shutdown.cancelled() => break,
-                    r = async {
-                        let permits = stats.reserve_frames(n).await;
-                        handle.tx.send(AircraftBatch { msgs, arrived: batch.arrived, permits }).await
-                    } => r.map_err(|e| mpsc::error::TrySendError::Closed(e.0)),
-                },
-                Overload::Drop => match stats.try_reserve_frames(n) {
-                    Some(permits) => handle.tx.try_send(AircraftBatch {
-                        msgs,
-                        arrived: batch.arrived,
-                        permits,
-                    }),
-                    None => Err(mpsc::error::TrySendError::Full(AircraftBatch {
-                        msgs,
-                        arrived: batch.arrived,
-                        permits: 0,
-                    })),
-                },
-            };
-            match sent {
-                Ok(()) => {}
-                Err(mpsc::error::TrySendError::Full(m)) => {
-                    stats.release_frames(m.permits);
-                    drops.dropped(n as u64, &stats);
-                }
-                Err(mpsc::error::TrySendError::Closed(m)) => {
+            match deliver(handle, batch.arrived, now_s, &cfg, &ctx, &mut drops).await {
+                Delivery::Sent => {}
+                Delivery::Shutdown => stopping = true,
+                Delivery::Gone => {
                     // The task ended (it panicked: tasks otherwise end only when the router
                     // drops them). Forget it; its next message spawns a fresh one.
-                    stats.release_frames(m.permits);
                     tracing::error!(%icao, "aircraft task gone; its messages of this batch are lost");
                     ctx.registry.remove(icao);
+                    stats.tracks_active.dec();
                     aircraft.remove(&icao);
-                    drops.dropped(n as u64, &stats);
                 }
             }
         }
@@ -238,6 +238,102 @@ pub async fn run_router(
     while tasks.join_next().await.is_some() {}
 }
 
+/// What became of an aircraft's messages of a batch.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Delivery {
+    /// Sent, or dropped and counted under [`Overload::Drop`].
+    Sent,
+    /// The task is gone (its messages dropped and counted).
+    Gone,
+    /// Shutdown came while waiting for room.
+    Shutdown,
+}
+
+/// Sends `handle`'s pending messages to its task: waiting for room in the frame budget
+/// ([`Stats::reserve_frames`]) and in the aircraft's channel, or, under the drop policy,
+/// dropping them (counted) when there is none.
+async fn deliver(
+    handle: &mut Handle,
+    arrived: Instant,
+    now_s: f64,
+    cfg: &RouterConfig,
+    ctx: &TaskContext,
+    drops: &mut DropLog,
+) -> Delivery {
+    let stats = &ctx.stats;
+    let msgs = std::mem::take(&mut handle.pending);
+    handle.last_batch_len = msgs.len();
+    let last = msgs.last().map_or(now_s, |d| d.time_s);
+    handle.last_seen_s = handle.last_seen_s.max(last);
+    handle.last_arrival = arrived;
+    let n = msgs.len();
+    let sent = match cfg.overload {
+        Overload::Backpressure => tokio::select! {
+            biased;
+            _ = ctx.shutdown.cancelled() => return Delivery::Shutdown,
+            r = async {
+                let permits = stats.reserve_frames(n).await;
+                handle.tx.send(AircraftBatch { msgs, arrived, permits }).await
+            } => r.map_err(|e| mpsc::error::TrySendError::Closed(e.0)),
+        },
+        Overload::Drop => match stats.try_reserve_frames(n) {
+            Some(permits) => handle.tx.try_send(AircraftBatch {
+                msgs,
+                arrived,
+                permits,
+            }),
+            None => Err(mpsc::error::TrySendError::Full(AircraftBatch {
+                msgs,
+                arrived,
+                permits: 0,
+            })),
+        },
+    };
+    match sent {
+        Ok(()) => Delivery::Sent,
+        Err(mpsc::error::TrySendError::Full(m)) => {
+            stats.release_frames(m.permits);
+            drops.dropped(n as u64, stats);
+            Delivery::Sent
+        }
+        Err(mpsc::error::TrySendError::Closed(m)) => {
+            stats.release_frames(m.permits);
+            drops.dropped(n as u64, stats);
+            Delivery::Gone
+        }
+    }
+}
+
+/// A new aircraft: its registry slot, its task, and the router's handle on it. Counted in
+/// `tracks_created` and `tracks_active`, which thus always equals what the registry lists:
+/// the router alone registers and removes aircraft, and counts both.
+fn spawn_aircraft(
+    icao: Icao,
+    time_s: f64,
+    arrived: Instant,
+    cfg: &RouterConfig,
+    ctx: &Arc<TaskContext>,
+    tasks: &mut JoinSet<()>,
+) -> Handle {
+    let (tx, rx) = mpsc::channel(cfg.channel_capacity);
+    let slot = ctx.registry.register(icao);
+    ctx.stats.tracks_created.inc();
+    ctx.stats.tracks_active.inc();
+    tasks.spawn(run_task(
+        Aircraft::new(icao, &cfg.aircraft),
+        rx,
+        slot,
+        ctx.clone(),
+    ));
+    Handle {
+        tx,
+        last_seen_s: time_s,
+        last_arrival: arrived,
+        pending: Vec::new(),
+        last_batch_len: 4,
+    }
+}
+
 /// Retires aircraft that received nothing for `idle` of wall-clock time: the feed-time sweep
 /// cannot see them when the feed's clock stopped with the feed.
 fn retire_wall_idle(aircraft: &mut FxHashMap<Icao, Handle>, idle: Duration, ctx: &TaskContext) {
@@ -247,6 +343,7 @@ fn retire_wall_idle(aircraft: &mut FxHashMap<Icao, Handle>, idle: Duration, ctx:
             tracing::debug!(%icao, "idle, retiring");
             ctx.registry.remove(*icao);
             ctx.stats.tracks_retired.inc();
+            ctx.stats.tracks_active.dec();
         }
         keep
     });

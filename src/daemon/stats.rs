@@ -49,7 +49,10 @@ pub struct Stats {
     /// plane (`aircraft::MAX_TRACK_RADIUS_M`), or the first after the position decoder gave
     /// up its reference.
     pub track_resets_jump: Counter,
-    /// Aircraft tasks alive now, spawned, retired.
+    /// Aircraft the registry lists now (what `/healthz` counts and `/api/v1/tracks` serves
+    /// when they have an estimate): counted by the router, which alone registers and retires
+    /// them. After a replay's end their tasks are gone but their last tracks are still
+    /// served, and still counted. Then aircraft spawned and retired so far.
     pub tracks_active: Gauge,
     pub tracks_created: Counter,
     pub tracks_retired: Counter,
@@ -221,7 +224,7 @@ impl Stats {
         );
         registry.register(
             "tracks_active",
-            "Aircraft tracked now",
+            "Aircraft tracked now (after a replay's end: its last tracks, still served)",
             s.tracks_active.clone(),
         );
         registry.register(

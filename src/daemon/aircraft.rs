@@ -346,6 +346,8 @@ pub struct TaskContext {
     pub stats: Arc<Stats>,
     /// Where update lines go (`--tracks-out`), one `Vec<u8>` of lines per processed batch.
     pub updates: Option<mpsc::Sender<Vec<u8>>>,
+    /// The outputs' broadcast (`[output.*]`): every update's snapshot, never waited for.
+    pub outputs: Option<crate::output::OutputSender>,
     pub shutdown: CancellationToken,
     /// Horizons of the published predictions, s.
     pub prediction_horizons_s: Vec<f64>,
@@ -391,6 +393,14 @@ pub async fn run_task(
         };
         for d in &batch.msgs {
             let updated = aircraft.handle(d, &mut counts);
+            if updated {
+                if let Some(tx) = &ctx.outputs {
+                    if let Some(p) = aircraft.published(&[]) {
+                        // No receiver (every output ended) is not an error of the pipeline.
+                        let _ = tx.send(crate::output::OutputEvent::Update(Arc::new(p)));
+                    }
+                }
+            }
             if updated && ctx.updates.is_some() {
                 if let Some(s) = aircraft.snapshot() {
                     // Serialising a plain struct of numbers and strings cannot fail.
@@ -412,6 +422,9 @@ pub async fn run_task(
                 tracing::warn!(%icao, "update writer gone");
             }
         }
+    }
+    if let Some(tx) = &ctx.outputs {
+        let _ = tx.send(crate::output::OutputEvent::Retired(icao));
     }
     ctx.stats.tracks_active.dec();
 }

@@ -816,13 +816,17 @@ mod tests {
             &b[..4],
             &[0b1011_1111, 0b1101_1111, 0b1011_1101, 0b0000_0100]
         );
+        if let Ok(path) = std::env::var("CAT062_DUMP") {
+            let block = data_blocks(&[b.clone()], 1400);
+            std::fs::write(path, &block[0].0).unwrap();
+        }
         let items = &b[4..];
         assert_eq!(&items[..3], &[25, 1, 1]);
         // 24189.5 s * 128 = 3096256 = 0x2F3EC0.
         assert_eq!(&items[3..6], &[0x2F, 0x3E, 0xC0]);
-        // 43.5 deg / (180/2^25) = 8108898.7 -> 8108899.
+        // 43.5 deg / (180/2^25) = 8108987.7 -> 8108988.
         let lat = i32::from_be_bytes([items[6], items[7], items[8], items[9]]);
-        assert_eq!(lat, 8_108_899);
+        assert_eq!(lat, 8_108_988);
         // X 1000 m = 2000 LSB; Y -2000.5 m = -4001 LSB.
         assert_eq!(&items[14..17], &[0x00, 0x07, 0xD0]);
         let y = i32::from_be_bytes([0xff, items[17], items[18], items[19]]);

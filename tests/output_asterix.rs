@@ -100,8 +100,11 @@ fn sub<'a>(msg: &'a Value, item: &str, subfield: &str, name: &str) -> Option<&'a
 
 macro_rules! ensure {
     ($c:expr $(, $($m:tt)*)?) => {
-        if !$c {
-            return Err(stringify!($c).to_string());
+        {
+            let ok: bool = $c;
+            if !ok {
+                return Err(stringify!($c).to_string());
+            }
         }
     };
 }

@@ -99,14 +99,12 @@ fn sub<'a>(msg: &'a Value, item: &str, subfield: &str, name: &str) -> Option<&'a
 }
 
 macro_rules! ensure {
-    ($c:expr $(, $($m:tt)*)?) => {
-        {
-            let ok: bool = $c;
-            if !ok {
-                return Err(stringify!($c).to_string());
-            }
+    ($c:expr $(, $($m:tt)*)?) => {{
+        let ok: bool = $c;
+        if !ok {
+            return Err(stringify!($c).to_string());
         }
-    };
+    }};
 }
 
 macro_rules! ensure_eq {

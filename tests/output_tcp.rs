@@ -230,15 +230,15 @@ async fn sbs_and_json_lines_clients_get_every_update() {
     }
     assert!(velocities.next().is_none());
     assert!(surface > 0, "the recording starts at the gate");
-    // Identity: the callsign once (MSG,1), the squawk once (MSG,6), the altitude as it
-    // changes (MSG,5).
+    // Identity: the callsign (MSG,1), the squawk (MSG,6), the reported altitude (MSG,5),
+    // each when it changes and at least every 10 s of feed time while updated.
     let callsigns: Vec<&str> = of_type("1").map(|f| f[10]).collect();
-    assert_eq!(callsigns, vec!["AFR34ZG"]);
+    assert!(!callsigns.is_empty());
+    assert!(callsigns.iter().all(|c| *c == "AFR34ZG"), "{callsigns:?}");
     let squawks: Vec<&str> = of_type("6").map(|f| f[17]).collect();
     let last = &track_lines[updates - 1];
     assert_eq!(squawks.last().copied(), last["squawk"].as_str());
     let alts: Vec<i64> = of_type("5").map(|f| f[11].parse().unwrap()).collect();
-    assert!(!alts.is_empty());
-    assert!(alts.windows(2).all(|w| w[0] != w[1]));
+    assert!(alts.len() > 1);
     let _ = std::fs::remove_dir_all(&dir);
 }

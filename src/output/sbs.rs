@@ -27,12 +27,25 @@ use tokio::net::TcpListener;
 use tokio::sync::broadcast;
 use tokio_util::sync::CancellationToken;
 
-/// What was last sent about an aircraft's identity.
+/// Identity messages (`MSG,1`, `5`, `6`) are repeated at least this often while the aircraft
+/// is updated, feed time, s: a client that connects later learns the callsign and squawk
+/// within this (a decoder's SBS output repeats them as the aircraft does, every ~5 s).
+pub const IDENTITY_REPEAT_S: f64 = 10.0;
+
+/// What was last sent about an aircraft's identity, and when (feed time, s).
 #[derive(Default)]
 struct Sent {
-    callsign: Option<String>,
-    baro_alt_ft: Option<i32>,
-    squawk: Option<String>,
+    callsign: Option<(String, f64)>,
+    baro_alt_ft: Option<(i32, f64)>,
+    squawk: Option<(String, f64)>,
+}
+
+/// True when `value` differs from what was `sent`, or was sent `IDENTITY_REPEAT_S` ago.
+fn due<T: PartialEq>(value: &T, sent: &Option<(T, f64)>, t_s: f64) -> bool {
+    match sent {
+        None => true,
+        Some((v, at)) => v != value || !(t_s - at < IDENTITY_REPEAT_S && t_s >= *at),
+    }
 }
 
 /// Formats updates as SBS lines, remembering per aircraft which identity facts were sent.
@@ -71,12 +84,13 @@ impl SbsFormatter {
         let vr_fpm = (t.vertical_rate_mps / FPM_TO_MPS).round() as i64;
         let sent = self.sent.entry(t.icao).or_default();
         let mut n = 0;
-        if t.callsign.is_some() && t.callsign != sent.callsign {
-            head(out, 1);
-            let cs = t.callsign.as_deref().unwrap_or("");
-            let _ = writeln!(out, "{cs},,,,,,,,,,,{ground}\r");
-            sent.callsign = t.callsign.clone();
-            n += 1;
+        if let Some(cs) = &t.callsign {
+            if due(cs, &sent.callsign, t.t) {
+                head(out, 1);
+                let _ = writeln!(out, "{cs},,,,,,,,,,,{ground}\r");
+                sent.callsign = Some((cs.clone(), t.t));
+                n += 1;
+            }
         }
         if t.on_ground {
             head(out, 2);
@@ -101,20 +115,23 @@ impl SbsFormatter {
             );
             n += 2;
         }
-        if t.baro_alt_ft.is_some() && t.baro_alt_ft != sent.baro_alt_ft {
-            head(out, 5);
-            let a = t.baro_alt_ft.unwrap_or(0);
-            let _ = writeln!(out, ",{a},,,,,,,0,{emergency},0,{ground}\r");
-            sent.baro_alt_ft = t.baro_alt_ft;
-            n += 1;
+        if let Some(a) = t.baro_alt_ft {
+            if due(&a, &sent.baro_alt_ft, t.t) {
+                head(out, 5);
+                let _ = writeln!(out, ",{a},,,,,,,0,{emergency},0,{ground}\r");
+                sent.baro_alt_ft = Some((a, t.t));
+                n += 1;
+            }
         }
-        if t.squawk.is_some() && t.squawk != sent.squawk {
-            head(out, 6);
-            let sq = squawk.unwrap_or("");
-            let alert = flag(sent.squawk.is_some());
-            let _ = writeln!(out, ",,,,,,,{sq},{alert},{emergency},0,{ground}\r");
-            sent.squawk = t.squawk.clone();
-            n += 1;
+        if let Some(sq) = squawk {
+            if due(&sq.to_string(), &sent.squawk, t.t) {
+                head(out, 6);
+                // Alert: the squawk changed from the one sent before.
+                let alert = flag(sent.squawk.as_ref().is_some_and(|(s, _)| s != sq));
+                let _ = writeln!(out, ",,,,,,,{sq},{alert},{emergency},0,{ground}\r");
+                sent.squawk = Some((sq.to_string(), t.t));
+                n += 1;
+            }
         }
         n
     }

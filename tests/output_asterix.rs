@@ -326,6 +326,10 @@ async fn cat062_records_decoded_by_tshark_match_the_tracks() {
             if field(m, "080", "TSE").map(num) == Some(1.0) {
                 terminations += 1;
             }
+            if field(m, "080", "CST").map(num) == Some(1.0) {
+                // Coasting: extrapolated past the last update, no update line to match.
+                continue;
+            }
             let tod = num(field(m, "070", "VALUE").unwrap());
             let lat = num(field(m, "105", "LAT").unwrap());
             let lon = num(field(m, "105", "LON").unwrap());

@@ -31,6 +31,10 @@ pub struct AsterixConfig {
     pub sic: u8,
     /// One data block per period with every track updated in it, s.
     pub period_s: f64,
+    /// A live track without an update for this long (feed time) is sent every period as
+    /// coasting (I062/080 CST), extrapolated along its velocity, until retired, s.
+    #[serde(default = "default_coast_after_s")]
+    pub coast_after_s: f64,
     /// Service identification (I062/015).
     #[serde(default = "default_service_id")]
     pub service_id: u8,
@@ -54,6 +58,9 @@ pub struct SystemRef {
     pub lon_deg: f64,
 }
 
+fn default_coast_after_s() -> f64 {
+    5.0
+}
 fn default_service_id() -> u8 {
     1
 }
@@ -198,6 +205,12 @@ impl OutputConfig {
                     .map_err(|p| bad(&format!("output.asterix.destinations[{i}]"), p))?;
             }
             seconds_within("output.asterix.period_s", a.period_s, 0.01, 3600.0)?;
+            seconds_within(
+                "output.asterix.coast_after_s",
+                a.coast_after_s,
+                0.1,
+                86_400.0,
+            )?;
             int_within("output.asterix.multicast_ttl", a.multicast_ttl, 0, 255)?;
             int_within(
                 "output.asterix.max_datagram_bytes",

@@ -432,6 +432,7 @@ pub fn record_of(
     first_t_s: f64,
     accel_mps2: Option<(f64, f64)>,
     mode3a_changed: bool,
+    coasting: bool,
 ) -> TrackRecord {
     use crate::track::{Lateral, SpeedTrend, VerticalTrend};
     let est = &p.estimate;
@@ -488,7 +489,7 @@ pub fn record_of(
         track_number,
         first,
         last,
-        coasting: false,
+        coasting,
         on_ground: t.on_ground,
         track_age_s: (t.t - first_t_s).max(0.0),
         es_age_s: (t.t - t.last_seen).max(0.0),
@@ -594,6 +595,8 @@ pub struct Cat062 {
     system_ref: Option<LocalFrame>,
     numbers: TrackNumbers,
     tracks: HashMap<Icao, Entry>,
+    /// The newest feed time of any update, s: the time coasting tracks are extrapolated to.
+    feed_now_s: f64,
 }
 
 impl Cat062 {
@@ -606,6 +609,7 @@ impl Cat062 {
             system_ref,
             numbers: TrackNumbers::default(),
             tracks: HashMap::new(),
+            feed_now_s: f64::NEG_INFINITY,
         }
     }
 
@@ -613,6 +617,7 @@ impl Cat062 {
     pub fn event(&mut self, e: OutputEvent) {
         match e {
             OutputEvent::Update(p) => {
+                self.feed_now_s = self.feed_now_s.max(p.estimate.t_s);
                 if let Some(entry) = self.tracks.get_mut(&p.icao) {
                     entry.latest = p;
                     entry.updated = true;
@@ -654,11 +659,26 @@ impl Cat062 {
         let mut out = Vec::new();
         let mut gone = Vec::new();
         for (icao, e) in self.tracks.iter_mut() {
-            if !(e.updated || e.retired) {
+            // A live track without an update for `coast_after_s` of feed time is sent every
+            // period as coasting (I062/080 CST), extrapolated along its velocity.
+            let coasting = !(e.updated || e.retired)
+                && self.feed_now_s - e.latest.estimate.t_s > self.cfg.coast_after_s;
+            if !(e.updated || e.retired || coasting) {
                 continue;
             }
-            let t = e.latest.track_state();
-            let has_accel = matches!(t.mode, "CA" | "CT" | "CHCA");
+            let extrapolated;
+            let p: &Published = if coasting {
+                let mut q = (*e.latest).clone();
+                let dt_s = self.feed_now_s - q.estimate.t_s;
+                q.estimate.pos_m += q.estimate.vel_mps * dt_s;
+                q.estimate.t_s = self.feed_now_s;
+                extrapolated = q;
+                &extrapolated
+            } else {
+                &e.latest
+            };
+            let t = p.track_state();
+            let has_accel = !coasting && matches!(t.mode, "CA" | "CT" | "CHCA");
             let accel = match e.last_sent {
                 Some((t0, ve0, vn0)) if has_accel && t.t - t0 >= 0.5 => {
                     let dt = t.t - t0;
@@ -669,7 +689,7 @@ impl Cat062 {
             let changed = e.last_squawk.is_some() && e.last_squawk != e.latest.facts.squawk;
             out.push(record_of(
                 &ctx,
-                &e.latest,
+                p,
                 &t,
                 e.number,
                 !e.announced,
@@ -677,6 +697,7 @@ impl Cat062 {
                 e.first_t_s,
                 accel,
                 changed,
+                coasting,
             ));
             e.announced = true;
             e.updated = false;
@@ -902,5 +923,92 @@ mod tests {
         n.next = 65_536;
         assert_eq!(n.take(), Some(0));
         assert_eq!(n.take(), None);
+    }
+    fn published(icao: u32, t_s: f64, east_m: f64, ve_mps: f64) -> Arc<Published> {
+        use crate::daemon::registry::AircraftFacts;
+        use crate::track::{Estimate, FlightMode};
+        use nalgebra::{Matrix3, Vector3};
+        Arc::new(Published {
+            icao: Icao(icao),
+            frame: LocalFrame::new(49.0, 2.5, 0.0),
+            estimate: Estimate {
+                t_s,
+                pos_m: Vector3::new(east_m, 0.0, 3000.0),
+                vel_mps: Vector3::new(ve_mps, 0.0, 0.0),
+                pos_cov_m2: Matrix3::from_diagonal_element(100.0),
+                vel_cov_m2ps2: Matrix3::from_diagonal_element(4.0),
+                mode: FlightMode::Cv,
+                mode_probabilities: [1.0, 0.0, 0.0, 0.0, 0.0],
+                filter: "kalman-cv",
+                diverging: false,
+                divergence_events: 0,
+                turn: None,
+                lateral: Default::default(),
+                speed: Default::default(),
+                vertical: Default::default(),
+            },
+            facts: AircraftFacts {
+                squawk: Some(0o7700),
+                ..AircraftFacts::default()
+            },
+            predictions: Vec::new(),
+        })
+    }
+
+    fn config() -> AsterixConfig {
+        crate::config::Config::from_toml_str(
+            "[output.asterix]\ndestinations = [\"127.0.0.1:8600\"]\nsac = 25\nsic = 1\nperiod_s = 1.0\n",
+        )
+        .unwrap()
+        .output
+        .asterix
+        .unwrap()
+    }
+
+    #[test]
+    fn tracks_are_created_coasted_terminated_and_numbered() {
+        // Feed times that are Unix times (2024-07-06), as the records' time of day needs.
+        const T0: f64 = 1_720_248_189.5;
+        let mut c = Cat062::new(config());
+        c.event(OutputEvent::Update(published(0xA, T0, 0.0, 200.0)));
+        c.event(OutputEvent::Update(published(0xB, T0, 0.0, 100.0)));
+        let r = c.period_records();
+        assert_eq!(r.len(), 2);
+        assert!(r.iter().all(|r| r.first && !r.last && !r.coasting));
+        assert_eq!((r[0].address, r[0].track_number), (0xA, 0));
+        assert_eq!((r[1].address, r[1].track_number), (0xB, 1));
+        assert_eq!(r[0].mode3a, Some(0o7700));
+        // Nothing new: nothing sent.
+        assert!(c.period_records().is_empty());
+        // B is updated 10 s later; A, silent past coast_after_s (5 s), coasts: extrapolated
+        // 10 s at 200 m/s east.
+        c.event(OutputEvent::Update(published(
+            0xB,
+            T0 + 10.0,
+            1000.0,
+            100.0,
+        )));
+        let r = c.period_records();
+        assert_eq!(r.len(), 2);
+        let (a, b) = (&r[0], &r[1]);
+        assert!(a.coasting && !a.first && !b.coasting && !b.first);
+        assert!((a.time_of_day_s - b.time_of_day_s).abs() < 1e-9);
+        let (_, m_per_deg_lon) = metres_per_degree(49.0);
+        assert!(
+            ((a.lon_deg - 2.5) * m_per_deg_lon - 2000.0).abs() < 1.0,
+            "{}",
+            a.lon_deg
+        );
+        assert!((b.track_age_s - 10.0).abs() < 1e-9);
+        // A retires: one last record, then its number waits behind every unused one.
+        c.event(OutputEvent::Retired(Icao(0xA)));
+        let r = c.period_records();
+        assert_eq!(r.len(), 1);
+        assert!(r[0].last && r[0].address == 0xA);
+        assert!(c.period_records().iter().all(|r| r.address != 0xA));
+        c.event(OutputEvent::Update(published(0xC, T0 + 11.0, 0.0, 100.0)));
+        let r = c.period_records();
+        let cr = r.iter().find(|r| r.address == 0xC).unwrap();
+        assert_eq!(cr.track_number, 2);
     }
 }

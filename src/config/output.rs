@@ -38,8 +38,8 @@ pub struct AsterixConfig {
     /// Service identification (I062/015).
     #[serde(default = "default_service_id")]
     pub service_id: u8,
-    /// System reference point: with it, records carry I062/100 (Cartesian position, m,
-    /// in the stereographic-free local east-north plane of this point).
+    /// System reference point: with it, records carry I062/100 (Cartesian position, m:
+    /// east and north in the plane tangent to the WGS-84 ellipsoid at this point).
     #[serde(default)]
     pub system_ref: Option<SystemRef>,
     /// Time to live of multicast datagrams (hops).

@@ -140,7 +140,13 @@ async fn client(
             },
             c = chunks.recv() => match c {
                 Ok(chunk) => {
-                    match tokio::time::timeout(write_timeout, wr.write_all(&chunk.bytes)).await {
+                    let write = tokio::time::timeout(write_timeout, wr.write_all(&chunk.bytes));
+                    let written = tokio::select! {
+                        biased;
+                        _ = shutdown.cancelled() => break,
+                        w = write => w,
+                    };
+                    match written {
                         Ok(Ok(())) => {
                             sent.inc_by(chunk.messages);
                         }

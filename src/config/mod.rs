@@ -5,6 +5,8 @@ use crate::feed::Format;
 use serde::Deserialize;
 use std::path::{Path, PathBuf};
 
+mod output;
+pub use output::{AsterixConfig, BBox, JsonlConfig, OutputConfig, SbsConfig, SystemRef};
 mod tracker;
 pub use tracker::{DivergenceConfig, GateConfig, HybridConfig, ImmConfig, PerMode, TrackerConfig};
 
@@ -119,6 +121,9 @@ pub struct Config {
     pub cpr: CprConfigToml,
     pub tracker: TrackerConfig,
     pub pipeline: PipelineConfig,
+    /// `[output.*]`: ASTERIX CAT062, SBS and JSON-lines outputs, each off when absent.
+    #[serde(default)]
+    pub output: OutputConfig,
 }
 
 /// How the pipeline behaves under load (`[pipeline]`).
@@ -448,6 +453,7 @@ impl Config {
             1 << 24,
         )?;
 
+        self.output.validate()?;
         self.tracker.validate_tuning()
     }
 }

@@ -438,6 +438,8 @@ pub struct TaskContext {
     pub stats: Arc<Stats>,
     /// Where update lines go (`--tracks-out`), one `Vec<u8>` of lines per processed batch.
     pub updates: Option<mpsc::Sender<Vec<u8>>>,
+    /// The outputs' broadcast (`[output.*]`): every update's snapshot, never waited for.
+    pub outputs: Option<crate::output::OutputSender>,
     pub shutdown: CancellationToken,
     /// Horizons of the published predictions, s.
     pub prediction_horizons_s: Vec<f64>,
@@ -483,6 +485,14 @@ pub async fn run_task(
         };
         for d in &batch.msgs {
             let updated = aircraft.handle(d, &mut counts);
+            if updated {
+                if let Some(tx) = &ctx.outputs {
+                    if let Some(p) = aircraft.published(&[], &mut counts) {
+                        // No receiver (every output ended) is not an error of the pipeline.
+                        let _ = tx.send(crate::output::OutputEvent::Update(Arc::new(p)));
+                    }
+                }
+            }
             if updated && ctx.updates.is_some() {
                 if let Some(s) = aircraft.snapshot(&mut counts) {
                     // Serialising a plain struct of numbers and strings cannot fail.
@@ -512,6 +522,9 @@ pub async fn run_task(
     }
     // `tracks_active` is the router's count: it follows the registry, which keeps serving
     // this aircraft's last snapshot after a replay's end.
+    if let Some(tx) = &ctx.outputs {
+        let _ = tx.send(crate::output::OutputEvent::Retired(icao));
+    }
 }
 
 /// Swaps the aircraft's new snapshot into its slot. The old one is freed when its last

@@ -173,10 +173,29 @@ pub async fn run(
         None => (None, None),
     };
 
+    // The outputs (`[output.*]`): bound before the pipeline starts, so a bad address fails
+    // the start and no update is missed.
+    let outputs_tx = config.output.any().then(crate::output::channel);
+    let outputs_stop = shutdown.child_token();
+    let outputs = match &outputs_tx {
+        Some(tx) => Some(
+            crate::output::Outputs::start(
+                &config.output,
+                tx,
+                shared.stats.outputs.clone(),
+                outputs_stop.clone(),
+            )
+            .await
+            .map_err(|(what, e)| DaemonError::Io(what, e))?,
+        ),
+        None => None,
+    };
+
     let ctx = Arc::new(TaskContext {
         registry: shared.registry.clone(),
         stats: shared.stats.clone(),
         updates: updates_tx,
+        outputs: outputs_tx,
         shutdown: pipeline_stop.clone(),
         prediction_horizons_s: config.tracker.prediction_horizons_s.clone(),
     });
@@ -321,6 +340,10 @@ pub async fn run(
     let _ = lag_monitor.await;
     if let Some(w) = writer {
         w.await??;
+    }
+    if let Some(outputs) = outputs {
+        outputs_stop.cancel();
+        outputs.stopped().await;
     }
     if let Some(server) = server {
         if let Err(e) = server.stopped().await {

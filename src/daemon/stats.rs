@@ -79,6 +79,8 @@ pub struct Stats {
     feeds: Mutex<Vec<std::sync::Arc<crate::feed::tcp::FeedStatus>>>,
     /// The HTTP server's connection counters.
     pub http: Arc<HttpStats>,
+    /// The outputs' counters (`[output.*]`).
+    pub outputs: Arc<crate::output::OutputStats>,
 }
 
 /// The HTTP server's connection counters (`/api/v1/stats` `http`, `/metrics` `adsb_http_*`).
@@ -169,6 +171,7 @@ impl Stats {
             feed_time_bits: AtomicU64::new(0f64.to_bits()),
             feeds: Mutex::new(Vec::new()),
             http: Arc::new(HttpStats::default()),
+            outputs: Arc::new(crate::output::OutputStats::default()),
             registry: Registry::default(),
         };
         registry.register(
@@ -287,6 +290,7 @@ impl Stats {
             "HTTP accept failures",
             s.http.accept_errors.clone(),
         );
+        s.outputs.register(&mut registry);
         Self { registry, ..s }
     }
 
@@ -458,6 +462,7 @@ impl Stats {
             latency: self.latency.summary(),
             feeds: self.feeds(),
             http: self.http.snapshot(),
+            outputs: self.outputs.snapshot(),
         }
     }
 }
@@ -557,6 +562,8 @@ pub struct StatsSnapshot {
     pub feeds: Vec<crate::feed::tcp::FeedStatusSnapshot>,
     /// The HTTP server's connections.
     pub http: HttpStatsSnapshot,
+    /// The outputs' counters.
+    pub outputs: crate::output::OutputStatsSnapshot,
 }
 
 /// Counters an aircraft (or the synchronous pipeline) keeps locally and flushes into the

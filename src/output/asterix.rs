@@ -14,12 +14,13 @@
 //! 17 I062/136, 18 I062/130, 19 I062/135, 20 I062/220, 27 I062/500.
 
 use super::time::{time_of_day_s, utc_of_feed_time};
-use super::{recv_counting, Output, OutputEvent, OutputStats};
+use super::{recv_counting, try_recv_counting, Output, OutputEvent, OutputStats};
 use crate::config::AsterixConfig;
 use crate::daemon::aircraft::{FPM_TO_MPS, FT_TO_M};
 use crate::daemon::registry::{Published, TrackState};
 use crate::decode::Icao;
 use crate::track::geo::LocalFrame;
+use prometheus_client::metrics::counter::Counter;
 use std::collections::{HashMap, VecDeque};
 use std::net::SocketAddr;
 use std::sync::Arc;
@@ -735,35 +736,52 @@ pub async fn run(
     let mut tick = tokio::time::interval(period);
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     let mut pipeline_open = true;
+    let counters = (sent, datagrams, errors);
     loop {
         tokio::select! {
             biased;
-            _ = shutdown.cancelled() => break,
-            _ = tick.tick() => {
-                let records = state.period_records();
-                if records.is_empty() {
-                    continue;
+            _ = shutdown.cancelled() => {
+                // What the pipeline sent before it stopped (the last updates, the
+                // retirements at the end of a replay) goes out in one last period.
+                while let Some(e) = try_recv_counting(&mut rx, &lagged) {
+                    state.event(e);
                 }
-                let encoded: Vec<Vec<u8>> = records
-                    .iter()
-                    .map(|r| {
-                        let mut b = Vec::with_capacity(96);
-                        r.encode(&mut b);
-                        b
-                    })
-                    .collect();
-                for (block, n) in data_blocks(&encoded, max_bytes) {
-                    let (ok, failed) = sender.send(&block).await;
-                    datagrams.inc_by(ok);
-                    sent.inc_by(n * ok);
-                    errors.inc_by(failed);
-                }
+                send_period(&mut state, &sender, max_bytes, &counters).await;
+                break;
             }
+            _ = tick.tick() => send_period(&mut state, &sender, max_bytes, &counters).await,
             e = recv_counting(&mut rx, &lagged), if pipeline_open => match e {
                 Some(e) => state.event(e),
                 None => pipeline_open = false,
             },
         }
+    }
+}
+
+/// Encodes and sends one period's records; counts records, datagrams and failed sends.
+async fn send_period(
+    state: &mut Cat062,
+    sender: &UdpSender,
+    max_bytes: usize,
+    (sent, datagrams, errors): &(Counter, Counter, Counter),
+) {
+    let records = state.period_records();
+    if records.is_empty() {
+        return;
+    }
+    let encoded: Vec<Vec<u8>> = records
+        .iter()
+        .map(|r| {
+            let mut b = Vec::with_capacity(96);
+            r.encode(&mut b);
+            b
+        })
+        .collect();
+    for (block, n) in data_blocks(&encoded, max_bytes) {
+        let (ok, failed) = sender.send(&block).await;
+        datagrams.inc_by(ok);
+        sent.inc_by(n * ok);
+        errors.inc_by(failed);
     }
 }
 

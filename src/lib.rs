@@ -13,5 +13,6 @@ pub mod daemon;
 pub mod decode;
 pub mod eval;
 pub mod feed;
+pub mod output;
 pub mod sim;
 pub mod track;

@@ -1,7 +1,7 @@
 //! The command line: parses arguments, binds sockets, installs SIGINT/SIGTERM, and calls the
 //! library. Everything else lives in the library so tests can run it.
 
-use adsb_tracker::config::Config;
+use adsb_tracker::config::{Config, MAX_SPEED, MIN_SPEED};
 use adsb_tracker::daemon::source::{Replay, ReplayData, EMBEDDED_DEFAULT, EMBEDDED_RECEIVER};
 use adsb_tracker::daemon::{self, RunOptions, Source};
 use adsb_tracker::feed::Format;
@@ -44,7 +44,7 @@ enum Command {
         #[arg(long, default_value = "auto")]
         format: String,
         /// Feed seconds per wall second, or `max`.
-        #[arg(long, default_value = "max")]
+        #[arg(long, default_value = "max", allow_negative_numbers = true)]
         speed: String,
         /// Write every track update as a JSON line.
         #[arg(long)]
@@ -78,7 +78,8 @@ enum Command {
     Evaluate {
         #[arg(long, conflicts_with_all = ["truth", "tracks"])]
         scenario: Option<String>,
-        #[arg(long, default_value_t = 100)]
+        /// Monte Carlo runs, 1..=100000.
+        #[arg(long, default_value_t = 100, value_parser = clap::value_parser!(u64).range(1..=100_000))]
         runs: u64,
         /// Comma-separated tracker names (`--tracker NAME` for one).
         #[arg(long, alias = "tracker", default_value = "hybrid,kalman-cv,imm")]
@@ -332,8 +333,10 @@ async fn main() -> Result<()> {
             let speed = match speed.as_str() {
                 "max" => 0.0,
                 s => match s.parse::<f64>() {
-                    Ok(v) if v.is_finite() && v > 0.0 => v,
-                    _ => bail!("--speed: expected a number > 0 or `max`, got {s:?}"),
+                    Ok(v) if (MIN_SPEED..=MAX_SPEED).contains(&v) => v,
+                    _ => bail!(
+                        "--speed: expected `max` or a number within {MIN_SPEED}..={MAX_SPEED}, got {s:?}"
+                    ),
                 },
             };
             let listener = match &serve {

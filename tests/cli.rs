@@ -119,13 +119,16 @@ fn replay_writes_track_lines() {
 
 #[test]
 fn bad_arguments_are_refused_clearly() {
-    let out = bin()
-        .args(["replay", "--speed", "fast"])
-        .arg(fixture("us-short-flights.csv"))
-        .output()
-        .unwrap();
-    assert!(!out.status.success());
-    assert!(String::from_utf8_lossy(&out.stderr).contains("--speed"));
+    // Issue 11, row 6: 1e-300 waited forever and overflowed timers.
+    for speed in ["fast", "1e-300", "0", "-1", "inf", "NaN", "1e300"] {
+        let out = bin()
+            .args(["replay", "--speed", speed])
+            .arg(fixture("us-short-flights.csv"))
+            .output()
+            .unwrap();
+        assert!(!out.status.success(), "--speed {speed}");
+        assert!(String::from_utf8_lossy(&out.stderr).contains("--speed"));
+    }
     let out = bin()
         .args(["replay", "--tracker", "magic"])
         .arg(fixture("us-short-flights.csv"))

@@ -115,6 +115,7 @@ fn live(config: &mut Config, addr: std::net::SocketAddr) -> Source {
         name: "fast".into(),
         addr: addr.to_string(),
         format: Format::Beast,
+        silence_timeout_s: adsb_tracker::config::DEFAULT_SILENCE_TIMEOUT_S,
     }];
     Source::Feeds(config.feeds.clone())
 }

@@ -64,6 +64,7 @@ async fn beast_feed_reconnects_after_a_cut_mid_frame() {
         name: "test-beast".into(),
         addr: feed_addr.to_string(),
         format: Format::Beast,
+        silence_timeout_s: adsb_tracker::config::DEFAULT_SILENCE_TIMEOUT_S,
     }];
     let source = Source::Feeds(config.feeds.clone());
     let d = TestDaemon::start(config, source, None).await;
@@ -107,6 +108,7 @@ async fn health_is_degraded_while_the_only_feed_is_down() {
         name: "down".into(),
         addr: addr.to_string(),
         format: Format::Avr,
+        silence_timeout_s: adsb_tracker::config::DEFAULT_SILENCE_TIMEOUT_S,
     }];
     let source = Source::Feeds(config.feeds.clone());
     let d = TestDaemon::start(config, source, None).await;

@@ -57,6 +57,7 @@ async fn looped(name: &str, passes: u64) -> StatsSnapshot {
         registry: Arc::new(Registry::default()),
         stats: stats.clone(),
         updates: None,
+        outputs: None,
         shutdown: CancellationToken::new(),
         prediction_horizons_s: Vec::new(),
     });

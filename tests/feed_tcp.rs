@@ -30,6 +30,7 @@ fn feed(addr: std::net::SocketAddr, format: Format) -> TcpFeed {
         addr: addr.to_string(),
         format,
         nominal_rate_hz: 100.0,
+        silence_timeout_s: 5.0,
     }
 }
 

@@ -3,17 +3,23 @@
 //! Errors are `{"error": "..."}` with a 4xx status: 400 for malformed input, 404 for an unknown
 //! aircraft or endpoint.
 
+pub mod server;
+
 use crate::daemon::registry::TrackState;
 use crate::daemon::Shared;
 use crate::decode::Icao;
 use crate::track::FlightMode;
-use axum::extract::rejection::QueryRejection;
-use axum::extract::{Path, Query, State};
-use axum::http::{header, StatusCode};
+use arc_swap::ArcSwapOption;
+use axum::body::{Body, Bytes};
+use axum::extract::rejection::{PathRejection, QueryRejection};
+use axum::extract::{FromRef, Path, Query, State};
+use axum::http::{header, HeaderValue, StatusCode};
 use axum::response::{Html, IntoResponse, Response};
 use axum::routing::get;
 use axum::{Json, Router};
 use serde::{Deserialize, Serialize};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
 
 /// The one error type of the API.
 #[derive(Debug, thiserror::Error)]
@@ -24,6 +30,9 @@ pub enum ApiError {
     /// Unknown aircraft or endpoint: 404.
     #[error("{0}")]
     NotFound(String),
+    /// The server cannot answer now: 503.
+    #[error("{0}")]
+    Unavailable(String),
 }
 
 impl IntoResponse for ApiError {
@@ -31,6 +40,7 @@ impl IntoResponse for ApiError {
         let status = match self {
             ApiError::BadRequest(_) => StatusCode::BAD_REQUEST,
             ApiError::NotFound(_) => StatusCode::NOT_FOUND,
+            ApiError::Unavailable(_) => StatusCode::SERVICE_UNAVAILABLE,
         };
         (
             status,
@@ -50,8 +60,34 @@ struct ErrorBody {
 /// A live table of the tracks (the map page comes later).
 const INDEX_HTML: &str = include_str!("index.html");
 
-/// The router, with its state: what `serve` runs and what tests `oneshot`.
+/// The API's state: the daemon's shared state and the cached `/api/v1/tracks` body.
+#[derive(Clone)]
+struct ApiState {
+    shared: Shared,
+    tracks: Arc<TracksCache>,
+}
+
+impl FromRef<ApiState> for Shared {
+    fn from_ref(api: &ApiState) -> Shared {
+        api.shared.clone()
+    }
+}
+
+/// The router, with its state and its layers: what `serve` runs and what tests `oneshot`.
+///
+/// Every response with an error status is the API's `{"error": ...}` JSON, the framework's
+/// own (405 with its `Allow`, extractor rejections, the request timeout's 503) included:
+/// [`json_errors`] rewrites whatever is not JSON yet.
 pub fn app(shared: Shared) -> Router {
+    let server = &shared.config.server;
+    let request_timeout =
+        Duration::try_from_secs_f64(server.request_timeout_s).unwrap_or(Duration::from_secs(10));
+    let state = ApiState {
+        tracks: Arc::new(TracksCache::new(Duration::from_millis(
+            server.tracks_cache_ms,
+        ))),
+        shared,
+    };
     Router::new()
         .route("/", get(|| async { Html(INDEX_HTML) }))
         .route("/api/v1/tracks", get(tracks))
@@ -61,7 +97,184 @@ pub fn app(shared: Shared) -> Router {
         .route("/healthz", get(healthz))
         .route("/metrics", get(metrics))
         .fallback(|| async { ApiError::NotFound("no such endpoint".into()) })
-        .with_state(shared)
+        .with_state(state)
+        .layer(tower_http::timeout::TimeoutLayer::with_status_code(
+            StatusCode::SERVICE_UNAVAILABLE,
+            request_timeout,
+        ))
+        .layer(axum::middleware::map_response(json_errors))
+}
+
+/// Longest error text kept from a framework rejection's body.
+const MAX_ERROR_TEXT_BYTES: usize = 1024;
+
+/// Turns an error response that is not JSON (axum's 405 and rejections, the timeout's 503)
+/// into `{"error": ...}`: its text body if it has one, else the status's reason. Headers
+/// such as 405's `Allow` are kept.
+async fn json_errors(response: Response) -> Response {
+    let status = response.status();
+    let is_json = response
+        .headers()
+        .get(header::CONTENT_TYPE)
+        .is_some_and(|v| v.as_bytes().starts_with(b"application/json"));
+    if !(status.is_client_error() || status.is_server_error()) || is_json {
+        return response;
+    }
+    let (mut parts, body) = response.into_parts();
+    let text = axum::body::to_bytes(body, MAX_ERROR_TEXT_BYTES)
+        .await
+        .unwrap_or_default();
+    let text = String::from_utf8_lossy(&text);
+    let error = match text.trim() {
+        "" => match status {
+            StatusCode::METHOD_NOT_ALLOWED => "method not allowed".to_string(),
+            StatusCode::SERVICE_UNAVAILABLE => "request timed out".to_string(),
+            s => s.canonical_reason().unwrap_or("error").to_lowercase(),
+        },
+        t => t.to_string(),
+    };
+    let body = serde_json::to_vec(&ErrorBody { error }).unwrap_or_default();
+    parts.headers.insert(
+        header::CONTENT_TYPE,
+        HeaderValue::from_static("application/json"),
+    );
+    parts.headers.remove(header::CONTENT_LENGTH);
+    Response::from_parts(parts, Body::from(body))
+}
+
+/// Every track as `/api/v1/tracks` serves it, built once for many readers.
+struct CachedTracks {
+    /// [`crate::daemon::registry::Registry::generation`] when it was read.
+    generation: u64,
+    built: Instant,
+    /// Feed time when it was read, s.
+    time: f64,
+    tracks: Vec<TrackState>,
+    /// The unfiltered response body.
+    body: Bytes,
+}
+
+/// The last [`CachedTracks`]. It is current while the registry has not changed since; a
+/// changed registry is still served from it for `max_age` (`server.tracks_cache_ms`), so
+/// under many readers one serialisation (~5 ms and 1.7 MB for 1,000 tracks) serves them all
+/// and each open response shares the one body instead of holding its own copy.
+struct TracksCache {
+    max_age: Duration,
+    current: ArcSwapOption<CachedTracks>,
+    /// One rebuild at a time; the others wait for it and take its result.
+    rebuilding: tokio::sync::Mutex<()>,
+}
+
+impl TracksCache {
+    fn new(max_age: Duration) -> Self {
+        Self {
+            max_age,
+            current: ArcSwapOption::empty(),
+            rebuilding: tokio::sync::Mutex::new(()),
+        }
+    }
+
+    fn fresh(&self, shared: &Shared) -> Option<Arc<CachedTracks>> {
+        let c = self.current.load_full()?;
+        (c.generation == shared.registry.generation() || c.built.elapsed() < self.max_age)
+            .then_some(c)
+    }
+
+    /// The cached tracks, rebuilt (off the server's threads) if stale.
+    async fn get(&self, shared: &Shared) -> Result<Arc<CachedTracks>, ApiError> {
+        if let Some(c) = self.fresh(shared) {
+            return Ok(c);
+        }
+        let _one = self.rebuilding.lock().await;
+        if let Some(c) = self.fresh(shared) {
+            return Ok(c);
+        }
+        let reader = shared.clone();
+        let built = tokio::task::spawn_blocking(move || {
+            let generation = reader.registry.generation();
+            let time = reader.stats.feed_time_s();
+            let tracks = reader.registry.all();
+            let body = tracks_body(time, &tracks);
+            CachedTracks {
+                generation,
+                built: Instant::now(),
+                time,
+                tracks,
+                body,
+            }
+        })
+        .await
+        .map_err(|e| ApiError::Unavailable(format!("building the track list: {e}")))?;
+        let built = Arc::new(built);
+        self.current.store(Some(built.clone()));
+        Ok(built)
+    }
+}
+
+/// `GET /api/v1/tracks` body.
+#[derive(Serialize)]
+struct TracksBody<'a> {
+    /// Feed time of the newest frame, s.
+    time: f64,
+    tracks: Vec<&'a TrackState>,
+}
+
+/// `{"time": ..., "tracks": [...]}` for these tracks.
+fn tracks_body<'a>(time: f64, tracks: impl IntoIterator<Item = &'a TrackState>) -> Bytes {
+    let body = TracksBody {
+        time,
+        tracks: tracks.into_iter().collect(),
+    };
+    // Serialising plain numbers and strings into memory cannot fail.
+    Bytes::from(serde_json::to_vec(&body).unwrap_or_default())
+}
+
+/// Bytes of a large body handed to hyper at a time. hyper asks for the next slice only when
+/// its write buffer has room and yields after a few writes, so a connection task writes at
+/// most a few slices per turn: hundreds of clients downloading the track list take turns
+/// in small steps, and a small request (`/healthz`) waits for a turn of each at most.
+const SLICE_BYTES: usize = 16 * 1024;
+
+/// A shared, already serialised body sent in [`SLICE_BYTES`] slices (zero-copy).
+struct Sliced {
+    rest: Bytes,
+}
+
+impl http_body::Body for Sliced {
+    type Data = Bytes;
+    type Error = std::convert::Infallible;
+
+    fn poll_frame(
+        mut self: std::pin::Pin<&mut Self>,
+        _cx: &mut std::task::Context<'_>,
+    ) -> std::task::Poll<Option<Result<http_body::Frame<Bytes>, Self::Error>>> {
+        if self.rest.is_empty() {
+            return std::task::Poll::Ready(None);
+        }
+        let n = self.rest.len().min(SLICE_BYTES);
+        let slice = self.rest.split_to(n);
+        std::task::Poll::Ready(Some(Ok(http_body::Frame::data(slice))))
+    }
+
+    fn is_end_stream(&self) -> bool {
+        self.rest.is_empty()
+    }
+
+    fn size_hint(&self) -> http_body::SizeHint {
+        http_body::SizeHint::with_exact(self.rest.len() as u64)
+    }
+}
+
+/// A JSON body already serialised, sent in slices.
+fn json_sliced(body: Bytes) -> Response {
+    (
+        [(
+            header::CONTENT_TYPE,
+            HeaderValue::from_static("application/json"),
+        )],
+        Body::new(Sliced { rest: body }),
+    )
+        .into_response()
 }
 
 /// `GET /api/v1/tracks` query.
@@ -72,13 +285,6 @@ struct TracksQuery {
     bbox: Option<String>,
     /// One label or a comma-separated list: `CV`, `CT,CA`.
     mode: Option<String>,
-}
-
-#[derive(Serialize)]
-struct TracksBody {
-    /// Feed time of the newest frame, s.
-    time: f64,
-    tracks: Vec<TrackState>,
 }
 
 /// A latitude/longitude box; `west > east` crosses the antimeridian.
@@ -128,10 +334,12 @@ impl BBox {
     }
 }
 
+/// Every track, or those in `bbox` and of the `mode`s asked, with the feed time. Served
+/// from [`TracksCache`]; a filtered list is serialised from the cached tracks.
 async fn tracks(
-    State(shared): State<Shared>,
+    State(api): State<ApiState>,
     query: Result<Query<TracksQuery>, QueryRejection>,
-) -> Result<Json<TracksBody>, ApiError> {
+) -> Result<Response, ApiError> {
     let Query(q) = query.map_err(|e| ApiError::BadRequest(e.body_text()))?;
     let bbox = q.bbox.as_deref().map(BBox::parse).transpose()?;
     let modes: Option<Vec<&'static str>> = q
@@ -148,24 +356,30 @@ async fn tracks(
                 .collect()
         })
         .transpose()?;
-    let tracks = shared
-        .registry
-        .all()
-        .into_iter()
+    let cached = api.tracks.get(&api.shared).await?;
+    if bbox.is_none() && modes.is_none() {
+        return Ok(json_sliced(cached.body.clone()));
+    }
+    let selected = cached
+        .tracks
+        .iter()
         .filter(|t| bbox.is_none_or(|b| b.contains(t.lat, t.lon)))
-        .filter(|t| modes.as_ref().is_none_or(|m| m.contains(&t.mode)))
-        .collect();
-    Ok(Json(TracksBody {
-        time: shared.stats.feed_time_s(),
-        tracks,
-    }))
+        .filter(|t| modes.as_ref().is_none_or(|m| m.contains(&t.mode)));
+    Ok(json_sliced(tracks_body(cached.time, selected)))
+}
+
+/// The `{icao}` of a path: a 400 `{"error"}` for anything but six hex digits, bad
+/// percent-encoding and invalid UTF-8 included.
+fn icao_of(path: Result<Path<String>, PathRejection>) -> Result<Icao, ApiError> {
+    let Path(icao) = path.map_err(|e| ApiError::BadRequest(e.body_text()))?;
+    icao.parse().map_err(ApiError::BadRequest)
 }
 
 async fn track(
     State(shared): State<Shared>,
-    Path(icao): Path<String>,
+    path: Result<Path<String>, PathRejection>,
 ) -> Result<Json<TrackState>, ApiError> {
-    let icao: Icao = icao.parse().map_err(ApiError::BadRequest)?;
+    let icao = icao_of(path)?;
     shared
         .registry
         .get(icao)
@@ -185,9 +399,9 @@ struct PredictionBody {
 /// Positions predicted by the current mode's model at the configured horizons.
 async fn prediction(
     State(shared): State<Shared>,
-    Path(icao): Path<String>,
+    path: Result<Path<String>, PathRejection>,
 ) -> Result<Json<PredictionBody>, ApiError> {
-    let icao: Icao = icao.parse().map_err(ApiError::BadRequest)?;
+    let icao = icao_of(path)?;
     let t = shared
         .registry
         .get(icao)
@@ -206,8 +420,8 @@ async fn stats(State(shared): State<Shared>) -> Json<crate::daemon::stats::Stats
 
 #[derive(Serialize)]
 struct Health {
-    /// "ok", or "degraded" when live feeds are configured and none is connected, or when
-    /// the ingest lag is past `pipeline.max_lag_s`.
+    /// "ok", or "degraded" while a configured live feed is down or silent (no frame for
+    /// half its `silence_timeout_s`), or the ingest lag is past `pipeline.max_lag_s`.
     status: &'static str,
     feed_time: f64,
     /// Age of the frames being routed, s (0 when idle).
@@ -216,14 +430,18 @@ struct Health {
     feeds: Vec<crate::feed::tcp::FeedStatusSnapshot>,
 }
 
-/// 200 while the daemon can serve fresh data; 503 when every live feed is down or ingest
-/// lags more than `pipeline.max_lag_s` behind (the API keeps serving the last state
+/// 200 while the daemon can serve fresh data; 503 while a live feed is down or silent, or
+/// ingest lags more than `pipeline.max_lag_s` behind (the API keeps serving the last state
 /// meanwhile).
 async fn healthz(State(shared): State<Shared>) -> Response {
     let feeds = shared.stats.feeds();
-    let feeds_down = !feeds.is_empty() && !feeds.iter().any(|f| f.connected);
+    let feeds_down = feeds.iter().any(|f| f.silent);
     let lag_s = shared.stats.ingest_lag_s();
-    let degraded = feeds_down || lag_s > shared.stats.max_lag_s();
+    let failed = shared
+        .stats
+        .pipeline_failed
+        .load(std::sync::atomic::Ordering::Acquire);
+    let degraded = failed || feeds_down || lag_s > shared.stats.max_lag_s();
     let body = Health {
         status: if degraded { "degraded" } else { "ok" },
         feed_time: shared.stats.feed_time_s(),

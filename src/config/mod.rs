@@ -5,6 +5,8 @@ use crate::feed::Format;
 use serde::Deserialize;
 use std::path::{Path, PathBuf};
 
+mod output;
+pub use output::{AsterixConfig, BBox, JsonlConfig, OutputConfig, SbsConfig, SystemRef};
 mod tracker;
 pub use tracker::{DivergenceConfig, GateConfig, HybridConfig, ImmConfig, PerMode, TrackerConfig};
 
@@ -14,10 +16,11 @@ pub const DEFAULT_TOML: &str = include_str!("../../config/default.toml");
 /// Why a configuration was refused.
 #[derive(Debug, thiserror::Error)]
 pub enum ConfigError {
-    #[error("cannot read {path}: {source}")]
+    /// (The I/O error is part of the message, not a separate cause: said once.)
+    #[error("cannot read {path}: {error}")]
     Read {
         path: PathBuf,
-        source: std::io::Error,
+        error: std::io::Error,
     },
     /// TOML syntax or a value of the wrong type; the message names the key.
     #[error("{0}")]
@@ -30,6 +33,69 @@ pub enum ConfigError {
 /// Largest `tracker.channel_capacity`, batches: a per-aircraft queue longer than this only
 /// hides a pipeline that cannot keep up (and tokio refuses absurd capacities by panicking).
 const MAX_CHANNEL_CAPACITY: usize = 65_536;
+
+/// Slowest replay speed, feed seconds per wall second: a day of feed time in ~3 years.
+/// Anything slower is a typo, and its waits overflow timers.
+pub const MIN_SPEED: f64 = 1e-3;
+/// Fastest replay speed other than 0 (as fast as possible).
+pub const MAX_SPEED: f64 = 1e6;
+
+/// A finite number within `lo..=hi` (the range named in the refusal).
+fn seconds_within(key: &str, v: f64, lo: f64, hi: f64) -> Result<(), ConfigError> {
+    if v.is_finite() && (lo..=hi).contains(&v) {
+        Ok(())
+    } else {
+        Err(bad(
+            key,
+            format!("must be within {lo}..={hi}, got {}", Short(v)),
+        ))
+    }
+}
+
+/// A number for a message: plain when short, in scientific notation when plain would be
+/// long (f64::MAX is 309 digits plain).
+pub struct Short(pub f64);
+
+impl std::fmt::Display for Short {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let a = self.0.abs();
+        if self.0.is_finite() && a != 0.0 && !(1e-4..1e9).contains(&a) {
+            write!(f, "{:e}", self.0)
+        } else {
+            write!(f, "{}", self.0)
+        }
+    }
+}
+
+/// An integer within `lo..=hi`.
+fn int_within<T: PartialOrd + std::fmt::Display>(
+    key: &str,
+    v: T,
+    lo: T,
+    hi: T,
+) -> Result<(), ConfigError> {
+    if v >= lo && v <= hi {
+        Ok(())
+    } else {
+        Err(bad(key, format!("must be within {lo}..={hi}, got {v}")))
+    }
+}
+
+/// `host:port` with a port in 1..=65535 and a non-empty host (a name, an IPv4 address or a
+/// bracketed IPv6 one); resolved only when the feed connects.
+fn check_host_port(addr: &str) -> Result<(), String> {
+    let (host, port) = addr
+        .rsplit_once(':')
+        .ok_or_else(|| format!("{addr:?}: expected host:port"))?;
+    let host = host.trim_start_matches('[').trim_end_matches(']');
+    if host.is_empty() || host.chars().any(char::is_whitespace) {
+        return Err(format!("{addr:?}: expected host:port"));
+    }
+    match port.parse::<u16>() {
+        Ok(p) if p > 0 => Ok(()),
+        _ => Err(format!("{addr:?}: the port must be within 1..=65535")),
+    }
+}
 
 /// A value of the right type refused, naming its key.
 fn bad(key: &str, problem: impl Into<String>) -> ConfigError {
@@ -55,6 +121,9 @@ pub struct Config {
     pub cpr: CprConfigToml,
     pub tracker: TrackerConfig,
     pub pipeline: PipelineConfig,
+    /// `[output.*]`: ASTERIX CAT062, SBS and JSON-lines outputs, each off when absent.
+    #[serde(default)]
+    pub output: OutputConfig,
 }
 
 /// How the pipeline behaves under load (`[pipeline]`).
@@ -78,6 +147,26 @@ pub struct PipelineConfig {
 pub struct ServerConfig {
     /// Address the HTTP API listens on.
     pub listen: String,
+    /// Connections open at once; one more is refused with 503.
+    pub max_connections: usize,
+    /// Time to send a request head (and the keep-alive idle limit), s.
+    pub header_read_timeout_s: f64,
+    /// Longest a response write may make no progress, s.
+    pub write_timeout_s: f64,
+    /// Longest a handler may take, s.
+    pub request_timeout_s: f64,
+    /// Requests served on one connection before it is closed.
+    pub max_requests_per_connection: u64,
+    /// Largest request head, bytes.
+    pub max_header_bytes: usize,
+    /// Time open connections get to finish at shutdown, s.
+    pub shutdown_grace_s: f64,
+    /// Longest a cached `/api/v1/tracks` body is served, ms (0: never cached).
+    pub tracks_cache_ms: u64,
+    /// Worker threads of the server's runtime.
+    pub threads: usize,
+    /// Niceness added to the server's threads.
+    pub nice: i32,
 }
 
 #[derive(Clone, Copy, Debug, Deserialize, PartialEq)]
@@ -96,6 +185,18 @@ pub struct FeedConfig {
     pub addr: String,
     /// `beast` or `avr`.
     pub format: Format,
+    /// A connected feed that sends nothing for this long is reported down and reconnected,
+    /// s. A Beast or AVR feed of a working receiver is never silent for seconds.
+    #[serde(default = "default_silence_timeout_s")]
+    pub silence_timeout_s: f64,
+}
+
+/// `feeds[].silence_timeout_s` when not given, s: a receiver that hears nothing for 30 s
+/// is broken, or its antenna is.
+pub const DEFAULT_SILENCE_TIMEOUT_S: f64 = 30.0;
+
+pub fn default_silence_timeout_s() -> f64 {
+    DEFAULT_SILENCE_TIMEOUT_S
 }
 
 #[derive(Clone, Debug, Deserialize, PartialEq)]
@@ -180,31 +281,54 @@ impl Config {
 
     /// Reads and validates a file.
     pub fn load(path: &Path) -> Result<Self, ConfigError> {
-        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+        let text = std::fs::read_to_string(path).map_err(|error| ConfigError::Read {
             path: path.to_path_buf(),
-            source,
+            error,
         })?;
         Self::from_toml_str(&text)
     }
 
-    /// Range checks that types cannot express.
+    /// Range checks that types cannot express: every number has a range, and a value
+    /// outside it is refused naming its key, so no arithmetic on a configured value can
+    /// overflow, panic or wait forever.
     pub fn validate(&self) -> Result<(), ConfigError> {
         fn positive(key: &str, v: f64) -> Result<(), ConfigError> {
             if v.is_finite() && v > 0.0 {
                 Ok(())
             } else {
-                Err(bad(key, format!("must be a finite number > 0, got {v}")))
+                Err(bad(
+                    key,
+                    format!("must be a finite number > 0, got {}", Short(v)),
+                ))
             }
         }
-        if self.server.listen.parse::<std::net::SocketAddr>().is_err() {
+        let s = &self.server;
+        if s.listen.parse::<std::net::SocketAddr>().is_err() {
             return Err(bad(
                 "server.listen",
-                format!(
-                    "{:?} is not an address like 127.0.0.1:8080",
-                    self.server.listen
-                ),
+                format!("{:?} is not an address like 127.0.0.1:8080", s.listen),
             ));
         }
+        int_within("server.max_connections", s.max_connections, 1, 65_536)?;
+        seconds_within(
+            "server.header_read_timeout_s",
+            s.header_read_timeout_s,
+            0.1,
+            3600.0,
+        )?;
+        seconds_within("server.write_timeout_s", s.write_timeout_s, 0.1, 3600.0)?;
+        seconds_within("server.request_timeout_s", s.request_timeout_s, 0.1, 3600.0)?;
+        int_within(
+            "server.max_requests_per_connection",
+            s.max_requests_per_connection,
+            1,
+            1_000_000,
+        )?;
+        int_within("server.max_header_bytes", s.max_header_bytes, 8192, 1 << 20)?;
+        seconds_within("server.shutdown_grace_s", s.shutdown_grace_s, 0.0, 600.0)?;
+        int_within("server.tracks_cache_ms", s.tracks_cache_ms, 0, 10_000)?;
+        int_within("server.threads", s.threads, 1, 64)?;
+        int_within("server.nice", s.nice, 0, 19)?;
         if let Some(r) = self.receiver {
             if !(-90.0..=90.0).contains(&r.lat_deg) {
                 return Err(bad("receiver.lat_deg", "must be within -90..90"));
@@ -213,16 +337,30 @@ impl Config {
                 return Err(bad("receiver.lon_deg", "must be within -180..180"));
             }
         }
+        let mut names = std::collections::HashSet::new();
         for (i, f) in self.feeds.iter().enumerate() {
+            if f.name.trim().is_empty() {
+                return Err(bad(&format!("feeds[{i}].name"), "must not be empty"));
+            }
+            if !names.insert(f.name.as_str()) {
+                return Err(bad(
+                    &format!("feeds[{i}].name"),
+                    format!("{:?} names two feeds; each needs its own name", f.name),
+                ));
+            }
             if !matches!(f.format, Format::Beast | Format::Avr) {
                 return Err(bad(
                     &format!("feeds[{i}].format"),
                     "a TCP feed is `beast` or `avr`",
                 ));
             }
-            if f.addr.is_empty() || !f.addr.contains(':') {
-                return Err(bad(&format!("feeds[{i}].addr"), "expected host:port"));
-            }
+            check_host_port(&f.addr).map_err(|p| bad(&format!("feeds[{i}].addr"), p))?;
+            seconds_within(
+                &format!("feeds[{i}].silence_timeout_s"),
+                f.silence_timeout_s,
+                0.5,
+                86_400.0,
+            )?;
         }
         if self.replay.format != "auto" && self.replay.format.parse::<Format>().is_err() {
             return Err(bad(
@@ -230,17 +368,39 @@ impl Config {
                 "expected auto, beast, avr, csv, iso or jsonl",
             ));
         }
-        if !(self.replay.speed.is_finite() && self.replay.speed >= 0.0) {
-            return Err(bad(
-                "replay.speed",
-                "must be >= 0 (0 = as fast as possible)",
-            ));
+        if self.replay.speed != 0.0 {
+            seconds_within("replay.speed", self.replay.speed, MIN_SPEED, MAX_SPEED).map_err(
+                |_| {
+                    bad(
+                        "replay.speed",
+                        format!(
+                            "must be 0 (as fast as possible) or within {MIN_SPEED}..={MAX_SPEED}, got {}",
+                            Short(self.replay.speed)
+                        ),
+                    )
+                },
+            )?;
         }
-        positive("decode.recent_address_s", self.decode.recent_address_s)?;
-        positive("decode.nominal_rate_hz", self.decode.nominal_rate_hz)?;
-        positive("cpr.pair_window_s", self.cpr.pair_window_s)?;
-        positive("cpr.max_speed_mps", self.cpr.max_speed_mps)?;
-        positive("cpr.max_surface_speed_mps", self.cpr.max_surface_speed_mps)?;
+        seconds_within(
+            "decode.recent_address_s",
+            self.decode.recent_address_s,
+            1e-3,
+            86_400.0,
+        )?;
+        seconds_within(
+            "decode.nominal_rate_hz",
+            self.decode.nominal_rate_hz,
+            1e-3,
+            1e7,
+        )?;
+        seconds_within("cpr.pair_window_s", self.cpr.pair_window_s, 1e-3, 3600.0)?;
+        seconds_within("cpr.max_speed_mps", self.cpr.max_speed_mps, 1.0, 100_000.0)?;
+        seconds_within(
+            "cpr.max_surface_speed_mps",
+            self.cpr.max_surface_speed_mps,
+            1.0,
+            1000.0,
+        )?;
         if !ALGORITHMS.contains(&self.tracker.algorithm.as_str()) {
             return Err(bad(
                 "tracker.algorithm",
@@ -251,26 +411,29 @@ impl Config {
                 ),
             ));
         }
-        positive("tracker.retire_after_s", self.tracker.retire_after_s)?;
+        seconds_within(
+            "tracker.retire_after_s",
+            self.tracker.retire_after_s,
+            1e-3,
+            86_400.0,
+        )?;
         positive("tracker.cv_q_horizontal", self.tracker.cv_q_horizontal)?;
         positive("tracker.cv_q_vertical", self.tracker.cv_q_vertical)?;
-        positive("tracker.max_gap_s", self.tracker.max_gap_s)?;
+        seconds_within("tracker.max_gap_s", self.tracker.max_gap_s, 1e-3, 86_400.0)?;
         for (i, h) in self.tracker.prediction_horizons_s.iter().enumerate() {
             if !(h.is_finite() && *h > 0.0 && *h <= 3600.0) {
                 return Err(bad(
                     &format!("tracker.prediction_horizons_s[{i}]"),
-                    format!("must be within (0, 3600] s, got {h}"),
+                    format!("must be within (0, 3600] s, got {}", Short(*h)),
                 ));
             }
         }
-        if self.tracker.channel_capacity == 0
-            || self.tracker.channel_capacity > MAX_CHANNEL_CAPACITY
-        {
-            return Err(bad(
-                "tracker.channel_capacity",
-                format!("must be within 1..={MAX_CHANNEL_CAPACITY}"),
-            ));
-        }
+        int_within(
+            "tracker.channel_capacity",
+            self.tracker.channel_capacity,
+            1,
+            MAX_CHANNEL_CAPACITY,
+        )?;
         if !(self.pipeline.max_lag_s.is_finite()
             && self.pipeline.max_lag_s > 0.0
             && self.pipeline.max_lag_s <= 86_400.0)
@@ -279,11 +442,18 @@ impl Config {
                 "pipeline.max_lag_s",
                 format!(
                     "must be within (0, 86400] s, got {}",
-                    self.pipeline.max_lag_s
+                    Short(self.pipeline.max_lag_s)
                 ),
             ));
         }
+        int_within(
+            "pipeline.max_queued_frames",
+            self.pipeline.max_queued_frames,
+            1024,
+            1 << 24,
+        )?;
 
+        self.output.validate()?;
         self.tracker.validate_tuning()
     }
 }
@@ -364,8 +534,75 @@ mod tests {
                 "[tracker]\nchannel_capacity = 2305843009213693952\n",
                 "tracker.channel_capacity",
             ),
+            // Issue 11, row 6: values that panicked, overflowed or waited forever.
+            ("[replay]\nspeed = 1e-300\n", "replay.speed"),
+            ("[replay]\nspeed = 1e300\n", "replay.speed"),
+            ("[tracker]\nretire_after_s = 2e19\n", "tracker.retire_after_s"),
+            ("[tracker]\nmax_gap_s = 1e308\n", "tracker.max_gap_s"),
+            ("[pipeline]\nmax_queued_frames = 0\n", "pipeline.max_queued_frames"),
+            (
+                "[pipeline]\nmax_queued_frames = 9223372036854775807\n",
+                "pipeline.max_queued_frames",
+            ),
+            ("[decode]\nnominal_rate_hz = 1e-300\n", "decode.nominal_rate_hz"),
+            ("[cpr]\npair_window_s = inf\n", "cpr.pair_window_s"),
+            ("[server]\nmax_connections = 0\n", "server.max_connections"),
+            ("[server]\nheader_read_timeout_s = 1e30\n", "server.header_read_timeout_s"),
+            ("[server]\nwrite_timeout_s = nan\n", "server.write_timeout_s"),
+            ("[server]\nmax_header_bytes = 100\n", "server.max_header_bytes"),
+            ("[server]\nshutdown_grace_s = -1.0\n", "server.shutdown_grace_s"),
+            ("[server]\nthreads = 0\n", "server.threads"),
+            ("[server]\nnice = 20\n", "server.nice"),
+            ("[server]\ntracks_cache_ms = 99999999\n", "server.tracks_cache_ms"),
+            // Row 12: feeds refused at start, not failing forever after.
+            (
+                "[[feeds]]\nname = \"a\"\naddr = \"127.0.0.1:99999\"\nformat = \"beast\"\n",
+                "feeds[0].addr",
+            ),
+            (
+                "[[feeds]]\nname = \"a\"\naddr = \":30005\"\nformat = \"beast\"\n",
+                "feeds[0].addr",
+            ),
+            (
+                "[[feeds]]\nname = \"\"\naddr = \"127.0.0.1:30005\"\nformat = \"beast\"\n",
+                "feeds[0].name",
+            ),
+            (
+                "[[feeds]]\nname = \"a\"\naddr = \"h:1\"\nformat = \"beast\"\n\
+                 [[feeds]]\nname = \"a\"\naddr = \"h:2\"\nformat = \"avr\"\n",
+                "feeds[1].name",
+            ),
+            (
+                "[[feeds]]\nname = \"a\"\naddr = \"h:1\"\nformat = \"beast\"\nsilence_timeout_s = 0.0\n",
+                "feeds[0].silence_timeout_s",
+            ),
         ];
         assert_refused_naming(&cases);
+    }
+
+    #[test]
+    fn huge_numbers_are_printed_short() {
+        let err = Config::from_toml_str("[tracker]\nretire_after_s = 1.7976931348623157e308\n")
+            .unwrap_err()
+            .to_string();
+        assert!(err.ends_with("got 1.7976931348623157e308"), "{err}");
+        assert_eq!(Short(2.5).to_string(), "2.5");
+        assert_eq!(Short(1e-300).to_string(), "1e-300");
+        assert_eq!(Short(f64::INFINITY).to_string(), "inf");
+    }
+
+    #[test]
+    fn feed_addresses_of_every_kind_are_accepted() {
+        for addr in [
+            "127.0.0.1:30005",
+            "localhost:30005",
+            "[::1]:30005",
+            "feeder.example:1",
+        ] {
+            let text = format!("[[feeds]]\nname = \"a\"\naddr = \"{addr}\"\nformat = \"beast\"\n");
+            let c = Config::from_toml_str(&text).unwrap_or_else(|e| panic!("{addr}: {e}"));
+            assert_eq!(c.feeds[0].silence_timeout_s, DEFAULT_SILENCE_TIMEOUT_S);
+        }
     }
 
     #[test]

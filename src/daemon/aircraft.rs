@@ -246,6 +246,9 @@ impl Aircraft {
             return false;
         };
         match self.tracker.update(&m) {
+            // A report without a position long after the track's last one ends the track
+            // (every tracker's `max_gap_s` rule) rather than updating it: no estimate left.
+            Ok(()) if m.position.is_none() && self.tracker.estimate().is_none() => false,
             Ok(()) => {
                 self.updates += 1;
                 counts.track_updates += 1;
@@ -435,6 +438,8 @@ pub struct TaskContext {
     pub stats: Arc<Stats>,
     /// Where update lines go (`--tracks-out`), one `Vec<u8>` of lines per processed batch.
     pub updates: Option<mpsc::Sender<Vec<u8>>>,
+    /// The outputs' broadcast (`[output.*]`): every update's snapshot, never waited for.
+    pub outputs: Option<crate::output::OutputSender>,
     pub shutdown: CancellationToken,
     /// Horizons of the published predictions, s.
     pub prediction_horizons_s: Vec<f64>,
@@ -480,6 +485,14 @@ pub async fn run_task(
         };
         for d in &batch.msgs {
             let updated = aircraft.handle(d, &mut counts);
+            if updated {
+                if let Some(tx) = &ctx.outputs {
+                    if let Some(p) = aircraft.published(&[], &mut counts) {
+                        // No receiver (every output ended) is not an error of the pipeline.
+                        let _ = tx.send(crate::output::OutputEvent::Update(Arc::new(p)));
+                    }
+                }
+            }
             if updated && ctx.updates.is_some() {
                 if let Some(s) = aircraft.snapshot(&mut counts) {
                     // Serialising a plain struct of numbers and strings cannot fail.
@@ -497,6 +510,7 @@ pub async fn run_task(
             &ctx.prediction_horizons_s,
             &mut counts,
         );
+        ctx.registry.touch();
         counts.flush(&ctx.stats);
         ctx.stats.observe_latency(batch.arrived.elapsed());
         ctx.stats.release_frames(batch.permits);
@@ -508,6 +522,9 @@ pub async fn run_task(
     }
     // `tracks_active` is the router's count: it follows the registry, which keeps serving
     // this aircraft's last snapshot after a replay's end.
+    if let Some(tx) = &ctx.outputs {
+        let _ = tx.send(crate::output::OutputEvent::Retired(icao));
+    }
 }
 
 /// Swaps the aircraft's new snapshot into its slot. The old one is freed when its last

@@ -60,12 +60,29 @@ pub struct RunOptions {
 /// Why the daemon stopped with an error.
 #[derive(Debug, thiserror::Error)]
 pub enum DaemonError {
+    /// (Each variant says its cause in its message, and has no separate `source`: an error
+    /// chain printed in full says each thing once.)
     #[error("replay: {0}")]
-    Replay(#[from] crate::feed::FeedError),
+    Replay(crate::feed::FeedError),
     #[error("{0}: {1}")]
     Io(String, std::io::Error),
     #[error("a daemon task failed: {0}")]
-    Join(#[from] tokio::task::JoinError),
+    Join(tokio::task::JoinError),
+    /// A task that must run until shutdown ended before it.
+    #[error("{0}")]
+    Died(String),
+}
+
+impl From<crate::feed::FeedError> for DaemonError {
+    fn from(e: crate::feed::FeedError) -> Self {
+        Self::Replay(e)
+    }
+}
+
+impl From<tokio::task::JoinError> for DaemonError {
+    fn from(e: tokio::task::JoinError) -> Self {
+        Self::Join(e)
+    }
 }
 
 /// What a finished run saw.
@@ -156,10 +173,29 @@ pub async fn run(
         None => (None, None),
     };
 
+    // The outputs (`[output.*]`): bound before the pipeline starts, so a bad address fails
+    // the start and no update is missed.
+    let outputs_tx = config.output.any().then(crate::output::channel);
+    let outputs_stop = shutdown.child_token();
+    let outputs = match &outputs_tx {
+        Some(tx) => Some(
+            crate::output::Outputs::start(
+                &config.output,
+                tx,
+                shared.stats.outputs.clone(),
+                outputs_stop.clone(),
+            )
+            .await
+            .map_err(|(what, e)| DaemonError::Io(what, e))?,
+        ),
+        None => None,
+    };
+
     let ctx = Arc::new(TaskContext {
         registry: shared.registry.clone(),
         stats: shared.stats.clone(),
         updates: updates_tx,
+        outputs: outputs_tx,
         shutdown: pipeline_stop.clone(),
         prediction_horizons_s: config.tracker.prediction_horizons_s.clone(),
     });
@@ -209,15 +245,20 @@ pub async fn run(
     match &opts.source {
         Source::Feeds(feeds) => {
             for f in feeds {
-                let status = Arc::new(FeedStatus::new(f.name.as_str()));
+                let feed = TcpFeed {
+                    name: f.name.clone(),
+                    addr: f.addr.clone(),
+                    format: f.format,
+                    nominal_rate_hz: config.decode.nominal_rate_hz,
+                    silence_timeout_s: f.silence_timeout_s,
+                };
+                let status = Arc::new(FeedStatus::with_silence_timeout(
+                    f.name.as_str(),
+                    feed.silence_timeout(),
+                ));
                 shared.stats.add_feed(status.clone());
                 feed_tasks.spawn(crate::feed::tcp::run_client(
-                    TcpFeed {
-                        name: f.name.clone(),
-                        addr: f.addr.clone(),
-                        format: f.format,
-                        nominal_rate_hz: config.decode.nominal_rate_hz,
-                    },
+                    feed,
                     batch_tx.clone(),
                     status,
                     pipeline_stop.clone(),
@@ -236,16 +277,14 @@ pub async fn run(
     }
     drop(batch_tx);
 
-    // The HTTP API.
-    let server = opts.listener.map(|listener| {
-        let app = crate::api::app(shared.clone());
-        let stop = shutdown.clone();
-        tokio::spawn(async move {
-            axum::serve(listener, app)
-                .with_graceful_shutdown(async move { stop.cancelled().await })
-                .await
-        })
-    });
+    // The HTTP API, on its own runtime: no client can slow the pipeline's.
+    let server = match opts.listener {
+        Some(listener) => Some(
+            crate::api::server::spawn(listener, shared.clone(), shutdown.clone())
+                .map_err(|e| DaemonError::Io("starting the HTTP server".into(), e))?,
+        ),
+        None => None,
+    };
 
     let mut replay_stats = None;
     if let Some(task) = replay_task {
@@ -263,9 +302,38 @@ pub async fn run(
             shutdown.cancelled().await;
         }
     } else {
-        shutdown.cancelled().await;
+        // Live: the router and the feed clients run until shutdown. One that ends before
+        // has died (a panic): serving a dead pipeline with a healthy /healthz would hide
+        // it, so the daemon stops with an error (a non-zero exit for its supervisor).
+        let mut router = router;
+        let died = tokio::select! {
+            biased;
+            _ = shutdown.cancelled() => None,
+            r = &mut router => Some(match r {
+                Err(e) => format!("the router task failed: {e}"),
+                Ok(()) => "the router task ended".to_string(),
+            }),
+            Some(r) = feed_tasks.join_next(), if !feed_tasks.is_empty() => Some(match r {
+                Err(e) => format!("a feed task failed: {e}"),
+                Ok(()) => "a feed task ended".to_string(),
+            }),
+        };
+        // A task that ended because shutdown began (its token is a child of ours) did not die.
+        let died = died.filter(|_| !shutdown.is_cancelled());
         pipeline_stop.cancel();
         while feed_tasks.join_next().await.is_some() {}
+        if let Some(why) = died {
+            tracing::error!("{why}: stopping the daemon");
+            shared
+                .stats
+                .pipeline_failed
+                .store(true, std::sync::atomic::Ordering::Release);
+            shutdown.cancel();
+            if let Some(server) = server {
+                let _ = server.stopped().await;
+            }
+            return Err(DaemonError::Died(why));
+        }
         router_done(router, &pipeline_stop, true).await?;
     }
     pipeline_stop.cancel();
@@ -273,8 +341,12 @@ pub async fn run(
     if let Some(w) = writer {
         w.await??;
     }
+    if let Some(outputs) = outputs {
+        outputs_stop.cancel();
+        outputs.stopped().await;
+    }
     if let Some(server) = server {
-        if let Err(e) = server.await? {
+        if let Err(e) = server.stopped().await {
             tracing::warn!(error = %e, "HTTP server ended with an error");
         }
     }

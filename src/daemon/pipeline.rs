@@ -92,3 +92,48 @@ impl SyncPipeline {
         &self.stats
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use crate::config::{Config, ALGORITHMS};
+    use crate::eval::bench::sync_pipeline;
+    use crate::feed::RawFrame;
+
+    fn frame(t: f64, hex: &str) -> RawFrame {
+        let bytes: Vec<u8> = (0..hex.len())
+            .step_by(2)
+            .filter_map(|i| u8::from_str_radix(hex.get(i..i + 2)?, 16).ok())
+            .collect();
+        RawFrame::new(t, &bytes, None).unwrap()
+    }
+
+    /// Fuzz finding (target `pipeline`): a velocity report 82 s after the track's last
+    /// report ends the track (every tracker's `max_gap_s` rule) instead of updating it. It was
+    /// counted as a tracker update that left no estimate (`Aircraft::handle` returned true).
+    /// The frames are the fuzzer's (parity written by the harness).
+    #[test]
+    fn a_report_that_ends_the_track_is_not_an_update() {
+        let frames = [
+            frame(35.125626, "8D48520A58C381180018385E43D0"),
+            frame(35.125626, "8D48520A48520C2C31040B916943"),
+            frame(68.45978166666666, "8D48520A4A5867C53C0821C37B98"),
+            frame(117.68010858333334, "5F000009CC99D1"),
+            frame(117.68010858333334, "8D48520A990C2C766C5F000CB492"),
+        ];
+        let config = Config::default_config().unwrap();
+        for algorithm in ALGORITHMS {
+            let mut p = sync_pipeline(&config, algorithm);
+            let mut states = 0;
+            for f in &frames {
+                if p.push(f).is_some_and(|u| u.state.is_some()) {
+                    states += 1;
+                }
+            }
+            assert_eq!(
+                p.stats().track_updates.get(),
+                states,
+                "{algorithm}: every counted update published a state"
+            );
+        }
+    }
+}

@@ -18,6 +18,7 @@ use arc_swap::ArcSwapOption;
 use nalgebra::{Matrix3, Vector3};
 use serde::Serialize;
 use std::collections::HashMap;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, RwLock};
 
 /// Probability of each flight mode, as JSON `{"CV": .., "CA": .., ...}`.
@@ -283,6 +284,10 @@ pub type Slot = Arc<ArcSwapOption<Published>>;
 #[derive(Default)]
 pub struct Registry {
     slots: RwLock<HashMap<Icao, Slot>>,
+    /// Bumped after every change a reader could see (a slot added, removed or published):
+    /// a reader that cached what it read at generation g knows it is current while the
+    /// generation is still g.
+    generation: AtomicU64,
 }
 
 impl Registry {
@@ -292,7 +297,18 @@ impl Registry {
         if let Ok(mut m) = self.slots.write() {
             m.insert(icao, slot.clone());
         }
+        self.touch();
         slot
+    }
+
+    /// Marks a change: called after a task stores a new snapshot in its slot.
+    pub fn touch(&self) {
+        self.generation.fetch_add(1, Ordering::Release);
+    }
+
+    /// The change counter (see [`Registry::touch`]); read it before reading the slots.
+    pub fn generation(&self) -> u64 {
+        self.generation.load(Ordering::Acquire)
     }
 
     /// Removes a retired aircraft.
@@ -300,6 +316,7 @@ impl Registry {
         if let Ok(mut m) = self.slots.write() {
             m.remove(&icao);
         }
+        self.touch();
     }
 
     /// One aircraft's latest snapshot, as published.

@@ -64,6 +64,9 @@ pub struct Stats {
     /// `pipeline.overload = "drop"` only (the default waits).
     /// Set once a replay has been read to its end and every aircraft task has drained.
     pub replay_finished: std::sync::atomic::AtomicBool,
+    /// Set when a task the pipeline needs died: `/healthz` answers 503 until the daemon,
+    /// which stops on it, has exited.
+    pub pipeline_failed: std::sync::atomic::AtomicBool,
     /// Time from a feed batch's arrival to its aircraft's published snapshot.
     pub latency: LatencyHistogram,
     /// Queues and the router's progress: the ingest lag.
@@ -74,6 +77,44 @@ pub struct Stats {
     feed_time_bits: AtomicU64,
     /// Feed status snapshots, by feed name (set by the daemon at start).
     feeds: Mutex<Vec<std::sync::Arc<crate::feed::tcp::FeedStatus>>>,
+    /// The HTTP server's connection counters.
+    pub http: Arc<HttpStats>,
+    /// The outputs' counters (`[output.*]`).
+    pub outputs: Arc<crate::output::OutputStats>,
+}
+
+/// The HTTP server's connection counters (`/api/v1/stats` `http`, `/metrics` `adsb_http_*`).
+#[derive(Debug, Default)]
+pub struct HttpStats {
+    /// Connections open now.
+    pub connections_open: Gauge,
+    /// Connections refused with 503 at `server.max_connections`.
+    pub connections_refused: Counter,
+    /// Connections closed by a timeout (request head not sent in time, or a response
+    /// write stalled past `server.write_timeout_s`).
+    pub connections_timed_out: Counter,
+    /// `accept` failures (out of file descriptors, ...).
+    pub accept_errors: Counter,
+}
+
+/// A copy of [`HttpStats`].
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct HttpStatsSnapshot {
+    pub connections_open: i64,
+    pub connections_refused: u64,
+    pub connections_timed_out: u64,
+    pub accept_errors: u64,
+}
+
+impl HttpStats {
+    pub fn snapshot(&self) -> HttpStatsSnapshot {
+        HttpStatsSnapshot {
+            connections_open: self.connections_open.get(),
+            connections_refused: self.connections_refused.get(),
+            connections_timed_out: self.connections_timed_out.get(),
+            accept_errors: self.accept_errors.get(),
+        }
+    }
 }
 
 impl Default for Stats {
@@ -117,6 +158,7 @@ impl Stats {
             channel_drops: Counter::default(),
             channel_dropped_messages: Counter::default(),
             replay_finished: std::sync::atomic::AtomicBool::new(false),
+            pipeline_failed: std::sync::atomic::AtomicBool::new(false),
             latency: LatencyHistogram::default(),
             routing: Arc::new(RoutingState {
                 budget: Semaphore::new(budget_frames),
@@ -128,6 +170,8 @@ impl Stats {
             max_lag_s,
             feed_time_bits: AtomicU64::new(0f64.to_bits()),
             feeds: Mutex::new(Vec::new()),
+            http: Arc::new(HttpStats::default()),
+            outputs: Arc::new(crate::output::OutputStats::default()),
             registry: Registry::default(),
         };
         registry.register(
@@ -226,6 +270,27 @@ impl Stats {
             "Feed batches queued for the router",
             LagGauge(GaugeFn::RouterQueued, s.routing.clone()),
         );
+        registry.register(
+            "http_connections_open",
+            "HTTP connections open",
+            s.http.connections_open.clone(),
+        );
+        registry.register(
+            "http_connections_refused",
+            "HTTP connections refused at server.max_connections",
+            s.http.connections_refused.clone(),
+        );
+        registry.register(
+            "http_connections_timed_out",
+            "HTTP connections closed by a header-read or write timeout",
+            s.http.connections_timed_out.clone(),
+        );
+        registry.register(
+            "http_accept_errors",
+            "HTTP accept failures",
+            s.http.accept_errors.clone(),
+        );
+        s.outputs.register(&mut registry);
         Self { registry, ..s }
     }
 
@@ -396,6 +461,8 @@ impl Stats {
             queued_batches: self.router_queued(),
             latency: self.latency.summary(),
             feeds: self.feeds(),
+            http: self.http.snapshot(),
+            outputs: self.outputs.snapshot(),
         }
     }
 }
@@ -493,6 +560,10 @@ pub struct StatsSnapshot {
     /// Arrival-to-publication latency.
     pub latency: LatencySummary,
     pub feeds: Vec<crate::feed::tcp::FeedStatusSnapshot>,
+    /// The HTTP server's connections.
+    pub http: HttpStatsSnapshot,
+    /// The outputs' counters.
+    pub outputs: crate::output::OutputStatsSnapshot,
 }
 
 /// Counters an aircraft (or the synchronous pipeline) keeps locally and flushes into the

@@ -98,7 +98,7 @@ pub fn inspect_file(
 ) -> Result<(), crate::feed::FeedError> {
     let io = |source| crate::feed::FeedError::Io {
         path: path.to_path_buf(),
-        source,
+        error: source,
     };
     let mut reader = crate::feed::replay::FileReader::open(path, format, 1000.0)?;
     let mut frames = Vec::new();

@@ -136,14 +136,14 @@ pub fn monte_carlo(
 ) -> Result<Experiment, EvalError> {
     std::fs::create_dir_all(work_dir).map_err(|source| EvalError::Read {
         path: work_dir.display().to_string(),
-        source,
+        error: source,
     })?;
     let mut merged: Vec<Scores> = vec![Scores::default(); trackers.len()];
     let mut first_truth = BTreeMap::new();
     let mut first_traces = Vec::new();
     for run in 0..runs {
         let prefix: PathBuf = work_dir.join(format!("run{run}"));
-        let summary = crate::sim::simulate(scenario, seed + run, &prefix)
+        let summary = crate::sim::simulate(scenario, seed.wrapping_add(run), &prefix)
             .map_err(|e| EvalError::Other(e.to_string()))?;
         let frames = read_frames(&summary.beast_path, Some(Format::Beast))?;
         let truth_text = read(&summary.truth_path)?;

@@ -9,11 +9,8 @@ use std::path::Path;
 /// Why an input file was refused; the message names the file and the line.
 #[derive(Debug, thiserror::Error)]
 pub enum EvalError {
-    #[error("cannot read {path}: {source}")]
-    Read {
-        path: String,
-        source: std::io::Error,
-    },
+    #[error("cannot read {path}: {error}")]
+    Read { path: String, error: std::io::Error },
     #[error("{path}:{line}: {problem}")]
     Line {
         path: String,
@@ -141,7 +138,7 @@ pub fn parse_tracks(
 pub fn read(path: &Path) -> Result<String, EvalError> {
     std::fs::read_to_string(path).map_err(|source| EvalError::Read {
         path: path.display().to_string(),
-        source,
+        error: source,
     })
 }
 

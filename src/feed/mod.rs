@@ -184,11 +184,11 @@ pub fn parser_for(format: Format, nominal_rate_hz: f64) -> Box<dyn FrameParser> 
 #[derive(Debug, thiserror::Error)]
 pub enum FeedError {
     /// The file could not be opened or read.
-    #[error("cannot read {}: {source}", path.display())]
+    /// (The I/O error is part of the message, not a separate cause: said once.)
+    #[error("cannot read {}: {error}", path.display())]
     Io {
         path: PathBuf,
-        #[source]
-        source: std::io::Error,
+        error: std::io::Error,
     },
     /// No format was given and [`detect::detect`] recognised none in the file's first bytes.
     #[error(

@@ -41,7 +41,7 @@ impl FileReader {
         let path = path.as_ref().to_path_buf();
         let io_err = |source| FeedError::Io {
             path: path.clone(),
-            source,
+            error: source,
         };
         let file = File::open(&path).map_err(io_err)?;
         let total_bytes = file.metadata().map_err(io_err)?.len();
@@ -74,7 +74,7 @@ impl FileReader {
     ) -> Result<Self, FeedError> {
         let io_err = |source| FeedError::Io {
             path: path.clone(),
-            source,
+            error: source,
         };
         let mut pending = Vec::with_capacity(CHUNK_BYTES + DETECT_HEAD_BYTES);
         let format = match format {
@@ -121,7 +121,7 @@ impl FileReader {
                 self.pending.truncate(filled);
                 return Err(FeedError::Io {
                     path: self.path.clone(),
-                    source,
+                    error: source,
                 });
             }
         };

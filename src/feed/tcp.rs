@@ -43,6 +43,9 @@ pub struct TcpFeed {
     /// Pacing of untimed AVR frames (see [`parser_for`]).
     #[serde(default = "default_nominal_rate_hz")]
     pub nominal_rate_hz: f64,
+    /// [`ClientTiming::idle_timeout`] of this feed, s (`feeds[].silence_timeout_s`).
+    #[serde(default = "crate::config::default_silence_timeout_s")]
+    pub silence_timeout_s: f64,
 }
 
 /// The frames of one socket read: one channel message per read, not per frame.
@@ -66,9 +69,11 @@ pub struct ClientTiming {
     /// Give up a connection attempt after this long (an unreachable host otherwise hangs
     /// for the kernel's SYN retries, minutes).
     pub connect_timeout: Duration,
-    /// Drop a connection that delivers nothing for this long: a peer that vanished without
-    /// closing never ends a read. readsb sends a heartbeat on idle Beast/AVR outputs, so a
-    /// live server is never silent this long.
+    /// Drop a connection that delivers no frame for this long (`feeds[].silence_timeout_s`)
+    /// and connect again: a peer that vanished without closing never ends a read, and a
+    /// receiver that only sends heartbeats (readsb does on idle outputs) or garbage hears
+    /// nothing. While a connected feed is silent past half of this, it is reported `silent`
+    /// (and `/healthz` degraded).
     pub idle_timeout: Duration,
 }
 
@@ -78,7 +83,7 @@ impl Default for ClientTiming {
             backoff_initial: Duration::from_millis(500),
             backoff_max: Duration::from_secs(30),
             connect_timeout: Duration::from_secs(10),
-            idle_timeout: Duration::from_secs(180),
+            idle_timeout: Duration::from_secs_f64(crate::config::DEFAULT_SILENCE_TIMEOUT_S),
         }
     }
 }
@@ -88,6 +93,10 @@ impl Default for ClientTiming {
 pub struct FeedStatus {
     name: Arc<str>,
     connected: AtomicBool,
+    /// When the feed last delivered a frame, or connected: silence is measured from it.
+    last_frame: Mutex<Instant>,
+    /// How long a connected feed may be silent before it is reconnected.
+    silence_timeout: Duration,
     connects: AtomicU64,
     disconnects: AtomicU64,
     bytes: AtomicU64,
@@ -103,6 +112,11 @@ pub struct FeedStatus {
 pub struct FeedStatusSnapshot {
     pub name: String,
     pub connected: bool,
+    /// Seconds since the feed last delivered a frame (or connected, or started trying).
+    pub silent_s: f64,
+    /// True while the feed is down, or connected but silent past half its
+    /// `silence_timeout_s` (at the whole of it, it is reconnected).
+    pub silent: bool,
     /// Successful connections so far.
     pub connects: u64,
     /// Connections that ended (closed by the peer, failed, idle, or shut down).
@@ -121,10 +135,18 @@ fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
 }
 
 impl FeedStatus {
+    /// A feed's status, with the default silence timeout.
     pub fn new(name: impl Into<Arc<str>>) -> Self {
+        Self::with_silence_timeout(name, ClientTiming::default().idle_timeout)
+    }
+
+    /// A feed's status; `silence_timeout` as in [`ClientTiming::idle_timeout`].
+    pub fn with_silence_timeout(name: impl Into<Arc<str>>, silence_timeout: Duration) -> Self {
         Self {
             name: name.into(),
             connected: AtomicBool::new(false),
+            last_frame: Mutex::new(Instant::now()),
+            silence_timeout,
             connects: AtomicU64::new(0),
             disconnects: AtomicU64::new(0),
             bytes: AtomicU64::new(0),
@@ -142,10 +164,27 @@ impl FeedStatus {
         self.connected.load(Ordering::Relaxed)
     }
 
+    /// Time since the last frame (or connection).
+    pub fn silent_for(&self) -> Duration {
+        lock(&self.last_frame).elapsed()
+    }
+
+    /// Down, or connected and silent past half the silence timeout: not delivering what
+    /// a working receiver delivers.
+    pub fn is_silent(&self) -> bool {
+        !self.is_connected() || self.silent_for() > self.silence_timeout / 2
+    }
+
+    fn heard(&self) {
+        *lock(&self.last_frame) = Instant::now();
+    }
+
     pub fn snapshot(&self) -> FeedStatusSnapshot {
         FeedStatusSnapshot {
             name: self.name.to_string(),
             connected: self.connected.load(Ordering::Relaxed),
+            silent_s: self.silent_for().as_secs_f64(),
+            silent: self.is_silent(),
             connects: self.connects.load(Ordering::Relaxed),
             disconnects: self.disconnects.load(Ordering::Relaxed),
             bytes: self.bytes.load(Ordering::Relaxed),
@@ -164,15 +203,28 @@ impl FeedStatus {
     }
 }
 
-/// Runs the client for `cfg` with the default [`ClientTiming`] until `shutdown` is
-/// cancelled or the receiving end of `tx` is dropped.
+/// Runs the client for `cfg` with the default [`ClientTiming`] but its own silence
+/// timeout, until `shutdown` is cancelled or the receiving end of `tx` is dropped.
 pub async fn run_client(
     cfg: TcpFeed,
     tx: mpsc::Sender<FrameBatch>,
     status: Arc<FeedStatus>,
     shutdown: CancellationToken,
 ) {
-    run_client_with(cfg, ClientTiming::default(), tx, status, shutdown).await;
+    let timing = ClientTiming {
+        idle_timeout: cfg.silence_timeout(),
+        ..ClientTiming::default()
+    };
+    run_client_with(cfg, timing, tx, status, shutdown).await;
+}
+
+impl TcpFeed {
+    /// `silence_timeout_s` as a duration (the default for a value a duration cannot hold;
+    /// the config refuses those at load).
+    pub fn silence_timeout(&self) -> Duration {
+        Duration::try_from_secs_f64(self.silence_timeout_s)
+            .unwrap_or(ClientTiming::default().idle_timeout)
+    }
 }
 
 /// How a connection ended.
@@ -194,6 +246,8 @@ pub async fn run_client_with(
     let feed: Arc<str> = Arc::from(cfg.name.as_str());
     let mut parser = parser_for(cfg.format, cfg.nominal_rate_hz);
     let mut backoff = timing.backoff_initial;
+    // Connection attempts failed in a row.
+    let mut failures: u64 = 0;
     while !tx.is_closed() {
         let attempt = tokio::time::timeout(timing.connect_timeout, TcpStream::connect(&cfg.addr));
         let connected = tokio::select! {
@@ -203,7 +257,9 @@ pub async fn run_client_with(
         match connected {
             Ok(Ok(stream)) => {
                 status.connects.fetch_add(1, Ordering::Relaxed);
+                status.heard();
                 status.connected.store(true, Ordering::Relaxed);
+                failures = 0;
                 tracing::info!(feed = %feed, addr = %cfg.addr, "feed connected");
                 let mut conn = Connection {
                     stream,
@@ -213,6 +269,7 @@ pub async fn run_client_with(
                     status: &status,
                     timing: &timing,
                     delivered: false,
+                    last_frame: Instant::now(),
                 };
                 let end = conn.run(&shutdown).await;
                 let delivered = conn.delivered;
@@ -226,14 +283,19 @@ pub async fn run_client_with(
                 }
             }
             Ok(Err(e)) => {
-                tracing::debug!(feed = %feed, addr = %cfg.addr, error = %e, "feed connect failed");
-                status.set_error(format!("connect to {}: {e}", cfg.addr));
+                failures += 1;
+                let why = format!("connect to {}: {e}", cfg.addr);
+                log_failure(&feed, &why, failures, backoff);
+                status.set_error(why);
             }
             Err(_) => {
-                status.set_error(format!(
+                failures += 1;
+                let why = format!(
                     "connect to {}: no answer within {:?}",
                     cfg.addr, timing.connect_timeout
-                ));
+                );
+                log_failure(&feed, &why, failures, backoff);
+                status.set_error(why);
             }
         }
         tokio::select! {
@@ -242,6 +304,18 @@ pub async fn run_client_with(
         }
         backoff = backoff.saturating_mul(2).min(timing.backoff_max);
     }
+}
+
+/// A failed connection attempt, at warn (a feed that never connects is the first thing an
+/// operator must see), as often as the attempts themselves: the capped exponential backoff
+/// spaces them (at most one every `backoff_max`, 30 s, once it has grown).
+fn log_failure(feed: &str, why: &str, failures: u64, retry_in: Duration) {
+    tracing::warn!(
+        feed = %feed,
+        failures,
+        retry_in_s = retry_in.as_secs_f64(),
+        "feed connection failed: {why}"
+    );
 }
 
 /// One connection's read loop.
@@ -254,6 +328,8 @@ struct Connection<'a> {
     timing: &'a ClientTiming,
     /// Some frames reached the channel on this connection.
     delivered: bool,
+    /// When this connection last delivered a frame (or opened).
+    last_frame: Instant,
 }
 
 impl Connection<'_> {
@@ -267,10 +343,16 @@ impl Connection<'_> {
                 self.parser.finish(&buf);
                 filled = 0;
             }
+            // Silence is counted from the last frame, not the last byte: heartbeats and
+            // garbage do not keep a feed alive.
+            let deadline = self
+                .last_frame
+                .checked_add(self.timing.idle_timeout)
+                .unwrap_or_else(|| Instant::now() + Duration::from_secs(86_400));
             let read = tokio::select! {
                 _ = shutdown.cancelled() => None,
-                r = tokio::time::timeout(
-                    self.timing.idle_timeout,
+                r = tokio::time::timeout_at(
+                    deadline.into(),
                     self.stream.read(buf.get_mut(filled..).unwrap_or(&mut [])),
                 ) => Some(r),
             };
@@ -284,7 +366,10 @@ impl Connection<'_> {
                 }
                 Some(Ok(Ok(0))) => "closed by peer".to_string(),
                 Some(Ok(Err(e))) => format!("read: {e}"),
-                Some(Err(_)) => format!("no data for {:?}", self.timing.idle_timeout),
+                Some(Err(_)) => format!(
+                    "no frame for {:?} (feeds[].silence_timeout_s)",
+                    self.timing.idle_timeout
+                ),
                 Some(Ok(Ok(n))) => {
                     self.status.bytes.fetch_add(n as u64, Ordering::Relaxed);
                     filled += n;
@@ -300,7 +385,7 @@ impl Connection<'_> {
                     continue;
                 }
             };
-            tracing::info!(feed = %self.feed, reason = %why, "feed disconnected");
+            tracing::warn!(feed = %self.feed, reason = %why, "feed disconnected");
             self.status.set_error(why);
             // The tail is counted as a truncated frame (or, for a complete final text line
             // without newline, parsed and sent).
@@ -332,6 +417,9 @@ impl Connection<'_> {
             return true;
         }
         let n = frames.len() as u64;
+        // Heard now, whatever the wait for room below (backpressure is not silence).
+        self.status.heard();
+        self.last_frame = Instant::now();
         let batch = self.batch(frames);
         let sent = tokio::select! {
             _ = shutdown.cancelled() => return false,

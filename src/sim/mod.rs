@@ -39,10 +39,10 @@ pub enum SimError {
     )]
     UnknownScenario { spec: String, available: String },
     /// Reading a scenario or writing an output failed.
-    #[error("{}: {source}", path.display())]
+    #[error("{}: {error}", path.display())]
     Io {
         path: PathBuf,
-        source: std::io::Error,
+        error: std::io::Error,
     },
 }
 
@@ -137,7 +137,7 @@ pub fn load_scenario(spec: &str) -> Result<Scenario, SimError> {
     if path.is_file() {
         let text = std::fs::read_to_string(path).map_err(|source| SimError::Io {
             path: path.to_owned(),
-            source,
+            error: source,
         })?;
         return Scenario::from_toml_str(&text);
     }

@@ -334,14 +334,17 @@ impl Sink {
                 w: BufWriter::with_capacity(1 << 16, f),
                 path,
             }),
-            Err(source) => Err(SimError::Io { path, source }),
+            Err(source) => Err(SimError::Io {
+                path,
+                error: source,
+            }),
         }
     }
 
     fn err(&self, source: io::Error) -> SimError {
         SimError::Io {
             path: self.path.clone(),
-            source,
+            error: source,
         }
     }
 

@@ -1,0 +1,105 @@
+#!/usr/bin/env bash
+# The API under load while a live feed streams (issue 11): the fleet scenario (1000
+# aircraft, fixtures/scenarios/fleet.toml) is served by `feed-sender` as a Beast feed at
+# RATE frames/s (default 82,800: 20x real time), `serve` tracks it, and after WARMUP s
+#   - wrk hammers GET /api/v1/tracks with CONNS connections for SECONDS s,
+#   - a probe times /healthz and /api/v1/stats, one request every 50 ms,
+#   - the ingest rate (frames/s) and lag are read from /api/v1/stats before and during.
+# Then NOREAD clients each pipeline 20 GET /api/v1/tracks and never read: RSS before, with
+# them, and after they close. Release build, loopback only; run it on an idle machine.
+# Usage: scripts/api-load.sh [CONNS] [SECONDS]   (env: TRACKER, RATE, WARMUP, NOREAD)
+set -euo pipefail
+cd "$(dirname "$0")/.."
+conns=${1:-256}
+secs=${2:-20}
+rate=${RATE:-82800}
+warmup=${WARMUP:-15}
+noread=${NOREAD:-500}
+tracker=${TRACKER:-hybrid}
+command -v wrk >/dev/null || { echo "needs wrk (apt-get install wrk)" >&2; exit 1; }
+cargo build --release --locked --bins >/dev/null
+bin=target/release/adsb-tracker
+work=${FLEET_DIR:-target/fleet}/fleet
+mkdir -p "$work"
+[ -f "$work/fleet.beast" ] || "$bin" simulate fleet --out "$work/fleet" >/dev/null
+port=$((30000 + RANDOM % 5000)); api=$((35000 + RANDOM % 5000))
+cfg=$(mktemp --suffix=.toml)
+printf '[server]\nlisten = "127.0.0.1:%s"\n[tracker]\nalgorithm = "%s"\n[[feeds]]\nname = "sender"\naddr = "127.0.0.1:%s"\nformat = "beast"\n' \
+  "$api" "$tracker" "$port" > "$cfg"
+target/release/feed-sender "$work/fleet.beast" --listen "127.0.0.1:$port" --rate "$rate" >/dev/null 2>&1 &
+spid=$!
+sleep 0.3
+RUST_LOG=warn "$bin" serve --config "$cfg" 2>/tmp/api-load.log &
+dpid=$!
+trap 'kill $dpid $spid 2>/dev/null || true; rm -f "$cfg"' EXIT
+sleep "$warmup"
+python3 - "$api" "$conns" "$secs" "$dpid" "$noread" <<'PY'
+import json, socket, subprocess, sys, threading, time, urllib.request
+api, conns, secs, pid, noread = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), sys.argv[4], int(sys.argv[5])
+base = f"http://127.0.0.1:{api}"
+
+def stats():
+    return json.load(urllib.request.urlopen(base + "/api/v1/stats", timeout=30))
+
+def rss_kib():
+    for line in open(f"/proc/{pid}/status"):
+        if line.startswith("VmRSS"):
+            return int(line.split()[1])
+
+def ingest(seconds):
+    a = stats(); t = time.time(); time.sleep(seconds); b = stats(); dt = time.time() - t
+    return (b["frames"] - a["frames"]) / dt, b
+
+rate0, s0 = ingest(5)
+print(f"tracks {len(json.load(urllib.request.urlopen(base + '/api/v1/tracks'))['tracks'])}, "
+      f"ingest without load {rate0:,.0f} frames/s, lag {s0['ingest_lag_s']:.2f} s")
+
+probe = {"/healthz": [], "/api/v1/stats": []}
+stop = threading.Event()
+def prober():
+    while not stop.is_set():
+        for path in probe:
+            t = time.perf_counter()
+            try:
+                urllib.request.urlopen(base + path, timeout=30).read()
+            except urllib.error.HTTPError as e:
+                e.read()
+            probe[path].append(time.perf_counter() - t)
+        time.sleep(0.05)
+th = threading.Thread(target=prober); th.start()
+lags = []
+def lagger():
+    while not stop.is_set():
+        lags.append(stats()["ingest_lag_s"]); time.sleep(0.5)
+tl = threading.Thread(target=lagger); tl.start()
+a = stats(); t = time.time()
+wrk = subprocess.run(["wrk", "-t2", f"-c{conns}", f"-d{secs}s", "--latency", "--timeout", "10s",
+                      base + "/api/v1/tracks"], capture_output=True, text=True).stdout
+b = stats(); dt = time.time() - t
+stop.set(); th.join(); tl.join()
+print(f"ingest under load {(b['frames'] - a['frames']) / dt:,.0f} frames/s, max lag {max(lags):.2f} s, "
+      f"dropped {b['channel_dropped_messages']}")
+for line in wrk.splitlines():
+    if any(k in line for k in ("Latency", "50%", "90%", "99%", "Requests/sec", "requests in", "Non-2xx", "Socket errors")):
+        print("wrk:", line.strip())
+def pct(v, p):
+    v = sorted(v); return v[min(len(v) - 1, int(p * len(v)))] * 1e3
+for path, v in probe.items():
+    print(f"{path}: {len(v)} requests, p50 {pct(v, .5):.1f} ms, p99 {pct(v, .99):.1f} ms, max {max(v) * 1e3:.1f} ms")
+
+# Clients that pipeline 20 requests and never read.
+r0 = rss_kib()
+socks = []
+req = b"GET /api/v1/tracks HTTP/1.1\r\nHost: x\r\n\r\n" * 20
+for _ in range(noread):
+    s = socket.create_connection(("127.0.0.1", int(api)))
+    s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+    s.sendall(req); socks.append(s)
+time.sleep(5)
+r1 = rss_kib()
+for s in socks: s.close()
+time.sleep(3)
+r2 = rss_kib()
+print(f"{noread} non-reading clients x 20 pipelined /api/v1/tracks: RSS {r0/1024:.0f} MiB before, "
+      f"{r1/1024:.0f} MiB with them, {r2/1024:.0f} MiB after they closed; http {stats()['http']}")
+PY

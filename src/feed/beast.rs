@@ -187,6 +187,17 @@ impl BeastParser {
     fn emit(&mut self, body: &[u8; MAX_BODY_BYTES], data: usize, out: &mut Vec<RawFrame>) {
         let [c0, c1, c2, c3, c4, c5, signal, ..] = *body;
         let ticks = u64::from_be_bytes([0, 0, c0, c1, c2, c3, c4, c5]);
+        // Mode A/C replies carry no address and are never tracked, and dump1090 may hold
+        // them for up to a minute before sending them (mlat-client keeps their stamps out of
+        // its clock, `modes_reader.c`): one would count as a receiver restart. They get the
+        // last time and leave the clock alone. Any other frame is timed now if it is an
+        // ordinary one (the time first, then the frame is built in place), else by the clock
+        // below.
+        let ordinary_s = if data == 2 {
+            None
+        } else {
+            self.clock.ordinary_ticks(ticks)
+        };
         // The last 14 bytes of the body: the data, and for shorter frames whatever followed
         // (ignored by `from_padded`).
         let Some(tail) = body.last_chunk::<MAX_FRAME_BYTES>() else {
@@ -198,14 +209,29 @@ impl BeastParser {
             7 => buf[..7].copy_from_slice(&tail[..7]),
             _ => buf = *tail,
         }
-        // The clock sets the time (now, or once a step in time is confirmed).
+        if let Some(time_s) = ordinary_s {
+            if let Some(frame) = RawFrame::from_padded(time_s, buf, data, Some(signal)) {
+                out.push(frame);
+            }
+            return;
+        }
+        self.emit_judged(ticks, buf, data, signal, out);
+    }
+
+    /// [`emit`](Self::emit) for a frame the clock has to judge (or hold): out of line, so the
+    /// ordinary path stays small.
+    #[inline(never)]
+    fn emit_judged(
+        &mut self,
+        ticks: u64,
+        buf: [u8; MAX_FRAME_BYTES],
+        data: usize,
+        signal: u8,
+        out: &mut Vec<RawFrame>,
+    ) {
         let Some(frame) = RawFrame::from_padded(0.0, buf, data, Some(signal)) else {
             return;
         };
-        // Mode A/C replies carry no address and are never tracked, and dump1090 may hold
-        // them for up to a minute before sending them (mlat-client keeps their stamps out of
-        // its clock, `modes_reader.c`): one would count as a receiver restart. They get the
-        // last time and leave the clock alone.
         if data == 2 {
             self.clock.push_untimed(frame, out);
         } else {

@@ -97,6 +97,10 @@ for f in "$WORK"/jsonl.*; do
     seed decode_cpr $((4 | 0x10)) "jsonl-$n" < "$f"
     seed pipeline $((4 | (n % 12) << 4)) "jsonl-$n" < "$f"
 done
+# Lines past MAX_LINE_BYTES (16 KiB): `0xFF n` in a text target's input repeats the byte
+# before it (n + 1) * 128 times, so these seeds are a few bytes each.
+printf '#a\377\200\n*8D4840D6202CC371C32CE0576098;\n \377\200\n' | seed feed_avr 1 long-lines
+printf '*8D\377\201\n1.5,8D4840D6202CC371C32CE0576098\n' | seed feed_lines 3 long-lines
 # config: the documented defaults whole and table by table, and the scenario files.
 cp config/default.toml "$SEEDS/config/default.toml"
 csplit -s -z -f "$SEEDS/config/default-" config/default.toml '/^\[/' '{*}'

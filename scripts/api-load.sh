@@ -7,7 +7,10 @@
 #   - the ingest rate (frames/s) and lag are read from /api/v1/stats before and during.
 # Then NOREAD clients each pipeline 20 GET /api/v1/tracks and never read: RSS before, with
 # them, and after they close. Release build, loopback only; run it on an idle machine.
-# Usage: scripts/api-load.sh [CONNS] [SECONDS]   (env: TRACKER, RATE, WARMUP, NOREAD)
+# Usage: scripts/api-load.sh [CONNS] [SECONDS]
+#   env: TRACKER, RATE, WARMUP, NOREAD; SERVER_NICE (server.nice, default 19); WRK_NICE
+#   (niceness of wrk itself, default 0: the load generator competes for this machine's two
+#   cores with the daemon, which a remote client does not).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 conns=${1:-256}
@@ -16,6 +19,8 @@ rate=${RATE:-82800}
 warmup=${WARMUP:-15}
 noread=${NOREAD:-500}
 tracker=${TRACKER:-hybrid}
+server_nice=${SERVER_NICE:-19}
+wrk_nice=${WRK_NICE:-0}
 command -v wrk >/dev/null || { echo "needs wrk (apt-get install wrk)" >&2; exit 1; }
 cargo build --release --locked --bins >/dev/null
 bin=target/release/adsb-tracker
@@ -24,7 +29,7 @@ mkdir -p "$work"
 [ -f "$work/fleet.beast" ] || "$bin" simulate fleet --out "$work/fleet" >/dev/null
 port=$((30000 + RANDOM % 5000)); api=$((35000 + RANDOM % 5000))
 cfg=$(mktemp --suffix=.toml)
-printf '[server]\nlisten = "127.0.0.1:%s"\n[tracker]\nalgorithm = "%s"\n[[feeds]]\nname = "sender"\naddr = "127.0.0.1:%s"\nformat = "beast"\n' \
+printf '[server]\nnice = '"$server_nice"'\nlisten = "127.0.0.1:%s"\n[tracker]\nalgorithm = "%s"\n[[feeds]]\nname = "sender"\naddr = "127.0.0.1:%s"\nformat = "beast"\n' \
   "$api" "$tracker" "$port" > "$cfg"
 target/release/feed-sender "$work/fleet.beast" --listen "127.0.0.1:$port" --rate "$rate" >/dev/null 2>&1 &
 spid=$!
@@ -33,9 +38,11 @@ RUST_LOG=warn "$bin" serve --config "$cfg" 2>/tmp/api-load.log &
 dpid=$!
 trap 'kill $dpid $spid 2>/dev/null || true; rm -f "$cfg"' EXIT
 sleep "$warmup"
-python3 - "$api" "$conns" "$secs" "$dpid" "$noread" <<'PY'
+python3 - "$api" "$conns" "$secs" "$dpid" "$noread" "$wrk_nice" "${LOAD_PATH:-/api/v1/tracks}" <<'PY'
 import json, socket, subprocess, sys, threading, time, urllib.request
 api, conns, secs, pid, noread = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), sys.argv[4], int(sys.argv[5])
+wrk_nice = sys.argv[6]
+load_path = sys.argv[7]
 base = f"http://127.0.0.1:{api}"
 
 def stats():
@@ -73,8 +80,8 @@ def lagger():
         lags.append(stats()["ingest_lag_s"]); time.sleep(0.5)
 tl = threading.Thread(target=lagger); tl.start()
 a = stats(); t = time.time()
-wrk = subprocess.run(["wrk", "-t2", f"-c{conns}", f"-d{secs}s", "--latency", "--timeout", "10s",
-                      base + "/api/v1/tracks"], capture_output=True, text=True).stdout
+wrk = subprocess.run(["nice", "-n", wrk_nice, "wrk", "-t2", f"-c{conns}", f"-d{secs}s", "--latency", "--timeout", "10s",
+                      base + load_path], capture_output=True, text=True).stdout
 b = stats(); dt = time.time() - t
 stop.set(); th.join(); tl.join()
 print(f"ingest under load {(b['frames'] - a['frames']) / dt:,.0f} frames/s, max lag {max(lags):.2f} s, "

@@ -142,10 +142,9 @@ mod tests {
     /// its last fix and accepts one 6,500 km from it 1 s later (its reset rule); the tracker
     /// takes it as an ordinary report, its estimate ends up thousands of km below the
     /// ellipsoid (finite in ENU), and the geodetic conversion on publication
-    /// (`ecef_to_geodetic`) gives `lat = NaN` for 8 of the 12 trackers. Ignored until the
-    /// non-finite reset of another branch of issue 11 lands: it must catch this case too.
+    /// (`ecef_to_geodetic`) gave `lat = NaN` for 8 of the 12 trackers. The jump and
+    /// non-finite resets (`track_resets_jump`, `track_resets_nonfinite`) now catch it.
     #[test]
-    #[ignore = "issue 11 row 9: the NaN reset is another branch's work"]
     fn random_reports_never_publish_a_nan() {
         let frames = [
             frame(0.2, "8D4840D69395D748F285D3DA2E55"),

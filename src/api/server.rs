@@ -233,7 +233,8 @@ pub async fn serve(listener: TcpListener, shared: Shared, limits: Limits, stop: 
         let conn = graceful.watch(conn);
         let stats = stats.clone();
         connections.spawn(async move {
-            if let Err(e) = conn.await {
+            // Each poll sends a bounded share of a large body: see `fair`.
+            if let Err(e) = super::fair::turns(conn, super::fair::TURN_BYTES).await {
                 if is_timeout(&e) {
                     stats.connections_timed_out.inc();
                 }

@@ -163,6 +163,8 @@ pub struct ServerConfig {
     pub shutdown_grace_s: f64,
     /// Longest a cached `/api/v1/tracks` body is served, ms (0: never cached).
     pub tracks_cache_ms: u64,
+    /// gzip level of the cached `/api/v1/tracks` body for clients that accept gzip (0: none).
+    pub tracks_gzip_level: u32,
     /// Worker threads of the server's runtime.
     pub threads: usize,
     /// Niceness added to the server's threads.
@@ -327,6 +329,7 @@ impl Config {
         int_within("server.max_header_bytes", s.max_header_bytes, 8192, 1 << 20)?;
         seconds_within("server.shutdown_grace_s", s.shutdown_grace_s, 0.0, 600.0)?;
         int_within("server.tracks_cache_ms", s.tracks_cache_ms, 0, 10_000)?;
+        int_within("server.tracks_gzip_level", s.tracks_gzip_level, 0, 9)?;
         int_within("server.threads", s.threads, 1, 64)?;
         int_within("server.nice", s.nice, 0, 19)?;
         if let Some(r) = self.receiver {
@@ -554,6 +557,7 @@ mod tests {
             ("[server]\nthreads = 0\n", "server.threads"),
             ("[server]\nnice = 20\n", "server.nice"),
             ("[server]\ntracks_cache_ms = 99999999\n", "server.tracks_cache_ms"),
+            ("[server]\ntracks_gzip_level = 10\n", "server.tracks_gzip_level"),
             // Row 12: feeds refused at start, not failing forever after.
             (
                 "[[feeds]]\nname = \"a\"\naddr = \"127.0.0.1:99999\"\nformat = \"beast\"\n",

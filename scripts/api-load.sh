@@ -46,12 +46,13 @@ trap 'kill $dpid $spid 2>/dev/null || true; rm -f "$cfg"' EXIT
 sleep "$warmup"
 echo "load average before: $(cut -d' ' -f1-3 /proc/loadavg)"
 python3 - "$api" "$conns" "$secs" "$dpid" "$noread" "$wrk_nice" "${LOAD_PATH:-/api/v1/tracks}" \
-  "${ENCODING:-}" "${POLL_MS:-0}" "${SMALL_CONNS:-2}" <<'PY'
+  "${ENCODING:-}" "${POLL_MS:-0}" "${SMALL_CONNS:-2}" "$rate" "$port" <<'PY'
 import json, os, socket, subprocess, sys, tempfile, threading, time, urllib.request
 api, conns, secs, pid, noread = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), sys.argv[4], int(sys.argv[5])
 wrk_nice = sys.argv[6]
 load_path = sys.argv[7]
 encoding, poll_ms, small_conns = sys.argv[8], int(sys.argv[9]), int(sys.argv[10])
+rate, feed_port = float(sys.argv[11]), sys.argv[12]
 base = f"http://127.0.0.1:{api}"
 hz = os.sysconf("SC_CLK_TCK")
 
@@ -82,9 +83,22 @@ def ingest(seconds):
     a = stats(); t = time.time(); time.sleep(seconds); b = stats(); dt = time.time() - t
     return (b["frames"] - a["frames"]) / dt, b
 
-rate0, s0 = ingest(5)
-print(f"tracks {len(json.load(urllib.request.urlopen(base + '/api/v1/tracks'))['tracks'])}, "
-      f"ingest without load {rate0:,.0f} frames/s, lag {s0['ingest_lag_s']:.2f} s")
+def feed_backlog_kib():
+    """Bytes the sender has sent that the daemon has not read yet (its socket's Recv-Q)."""
+    out = subprocess.run(["ss", "-Htn", "state", "established", "dst", f"127.0.0.1:{feed_port}"],
+                         capture_output=True, text=True).stdout.split()
+    return int(out[0]) / 1024 if out else 0.0
+
+print(f"tracks {len(json.load(urllib.request.urlopen(base + '/api/v1/tracks'))['tracks'])}")
+a = stats(); t = time.time(); c0 = cpu_s(); time.sleep(5); s0 = stats(); t_ref = time.time(); c1 = cpu_s()
+rate0 = (s0["frames"] - a["frames"]) / (t_ref - t)
+print(f"ingest without load {rate0:,.0f} frames/s, lag {s0['ingest_lag_s']:.2f} s, pipeline "
+      f"{(c1[1] - c0[1]) / (s0['frames'] - a['frames']) * 1e6:.2f} CPU-us/frame")
+# Frames the paced sender has offered since t_ref, less those ingested: how far behind
+# real time the daemon has fallen (queued in the daemon, in the socket, or not yet sent).
+f_ref = s0["frames"]
+def behind_s(st, t):
+    return ((t - t_ref) * rate - (st["frames"] - f_ref)) / rate
 
 probe = {"/healthz": [], "/api/v1/stats": []}
 stop = threading.Event()
@@ -99,10 +113,12 @@ def prober():
             probe[path].append(time.perf_counter() - t)
         time.sleep(0.05)
 th = threading.Thread(target=prober); th.start()
-lags = []
+lags, behind, backlog = [], [], []
 def lagger():
     while not stop.is_set():
-        lags.append(stats()["ingest_lag_s"]); time.sleep(0.5)
+        st = stats(); now = time.time()
+        lags.append(st["ingest_lag_s"]); behind.append(behind_s(st, now))
+        backlog.append(feed_backlog_kib()); time.sleep(0.5)
 tl = threading.Thread(target=lagger); tl.start()
 def wrk_cmd(path, c, threads, extra=()):
     return ["nice", "-n", wrk_nice, "wrk", f"-t{threads}", f"-c{c}", f"-d{secs}s", "--latency",
@@ -119,9 +135,14 @@ wrk = subprocess.run(wrk_cmd(load_path, conns, 2, extra), capture_output=True, t
 b = stats(); dt = time.time() - t; c1 = cpu_s()
 small_out = [p.communicate()[0] for p in small]
 stop.set(); th.join(); tl.join()
-print(f"ingest under load {(b['frames'] - a['frames']) / dt:,.0f} frames/s, max lag {max(lags):.2f} s, "
+frames = b['frames'] - a['frames']
+print(f"ingest under load {frames / dt:,.0f} frames/s, max lag {max(lags):.2f} s, "
       f"dropped {b['channel_dropped_messages']}; CPU: server {(c1[0] - c0[0]) / dt:.2f} cores, "
-      f"rest of the daemon {(c1[1] - c0[1]) / dt:.2f} cores")
+      f"pipeline {(c1[1] - c0[1]) / dt:.2f} cores ({(c1[1] - c0[1]) / max(frames, 1) * 1e6:.2f} CPU-us/frame)")
+time.sleep(3); st = stats()
+print(f"behind the sender's schedule: at most {max(behind):.2f} s during the load, "
+      f"{behind_s(st, time.time()):.2f} s 3 s after it; daemon's feed socket backlog at most "
+      f"{max(backlog):.0f} KiB")
 keys = ("Latency", "50%", "90%", "99%", "Requests/sec", "requests in", "Non-2xx", "Socket errors")
 for name, out in [(load_path + (f" ({encoding})" if encoding else ""), wrk)] + \
         list(zip(["/healthz (wrk)", "/api/v1/stats (wrk)"], small_out)):

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # The API under load while a live feed streams (issue 11): the fleet scenario (1000
-# aircraft, fixtures/scenarios/fleet.toml) is served by `feed-sender` as a Beast feed at
+# aircraft, fixtures/scenarios/fleet.toml, flown for 30 min) is served by `feed-sender` as a Beast feed at
 # RATE frames/s (default 82,800: 20x real time), `serve` tracks it, and after WARMUP s
 #   - wrk hammers GET /api/v1/tracks with CONNS connections for SECONDS s,
 #   - a probe times /healthz and /api/v1/stats, one request every 50 ms,
@@ -16,7 +16,9 @@
 #   cores with the daemon, which a remote client does not); ENCODING (sent as
 #   Accept-Encoding by the big wrk, e.g. gzip); POLL_MS (each big-wrk connection waits this
 #   long between requests, as a polling map page does; default 0: as fast as it can);
-#   SMALL_CONNS (0: no small-endpoint wrk); BIN (a daemon binary to use instead of building).
+#   SMALL_CONNS (0: no small-endpoint wrk); SMALL_DELAY_MS (each of those waits this long
+#   between requests, default 10: a latency probe rather than a flood; 0: as fast as it can);
+#   BIN (a daemon binary to use instead of building).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 conns=${1:-256}
@@ -30,9 +32,16 @@ wrk_nice=${WRK_NICE:-0}
 command -v wrk >/dev/null || { echo "needs wrk (apt-get install wrk)" >&2; exit 1; }
 if [ -z "${BIN:-}" ]; then cargo build --release --locked --bins >/dev/null; fi
 bin=${BIN:-target/release/adsb-tracker}
-work=${FLEET_DIR:-target/fleet}/fleet
+# The fleet scenario flown for 30 min instead of 10: at 20x real time the feed lasts 90 s,
+# longer than a run (the 10-min file ends after 30 s, and a feed that has ended looks like
+# ingest slowed down).
+work=${FLEET_DIR:-target/fleet}/fleet-30min
 mkdir -p "$work"
-[ -f "$work/fleet.beast" ] || "$bin" simulate fleet --out "$work/fleet" >/dev/null
+if [ ! -f "$work/fleet.beast" ]; then
+  sed 's/^duration_s = 600.0/duration_s = 1800.0/' fixtures/scenarios/fleet.toml > "$work/fleet.toml"
+  "$bin" simulate "$work/fleet.toml" --out "$work/fleet" >/dev/null
+  rm -f "$work/fleet.avr" "$work/fleet.truth.csv"
+fi
 port=$((30000 + RANDOM % 5000)); api=$((35000 + RANDOM % 5000))
 cfg=$(mktemp --suffix=.toml)
 printf '[server]\nnice = '"$server_nice"'\nlisten = "127.0.0.1:%s"\n[tracker]\nalgorithm = "%s"\n[[feeds]]\nname = "sender"\naddr = "127.0.0.1:%s"\nformat = "beast"\n' \
@@ -46,19 +55,20 @@ trap 'kill $dpid $spid 2>/dev/null || true; rm -f "$cfg"' EXIT
 sleep "$warmup"
 echo "load average before: $(cut -d' ' -f1-3 /proc/loadavg)"
 python3 - "$api" "$conns" "$secs" "$dpid" "$noread" "$wrk_nice" "${LOAD_PATH:-/api/v1/tracks}" \
-  "${ENCODING:-}" "${POLL_MS:-0}" "${SMALL_CONNS:-2}" "$rate" "$port" <<'PY'
+  "${ENCODING:-}" "${POLL_MS:-0}" "${SMALL_CONNS:-2}" "$rate" "$port" "${SMALL_DELAY_MS:-10}" <<'PY'
 import json, os, socket, subprocess, sys, tempfile, threading, time, urllib.request
 api, conns, secs, pid, noread = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), sys.argv[4], int(sys.argv[5])
 wrk_nice = sys.argv[6]
 load_path = sys.argv[7]
 encoding, poll_ms, small_conns = sys.argv[8], int(sys.argv[9]), int(sys.argv[10])
 rate, feed_port = float(sys.argv[11]), sys.argv[12]
+small_delay_ms = int(sys.argv[13])
 base = f"http://127.0.0.1:{api}"
 hz = os.sysconf("SC_CLK_TCK")
 
 def cpu_s():
-    """CPU seconds of the daemon's threads: (HTTP server's, the rest)."""
-    http = rest = 0.0
+    """CPU seconds of the daemon's threads: (HTTP server's, the rest, the server's bulk lane)."""
+    http = rest = bulk = 0.0
     for tid in os.listdir(f"/proc/{pid}/task"):
         try:
             stat = open(f"/proc/{pid}/task/{tid}/stat").read()
@@ -69,7 +79,8 @@ def cpu_s():
         t = (int(fields[11]) + int(fields[12])) / hz
         if comm.startswith("adsb-http"): http += t
         else: rest += t
-    return http, rest
+        if comm.startswith("adsb-http-bulk"): bulk += t
+    return http, rest, bulk
 
 def stats():
     return json.load(urllib.request.urlopen(base + "/api/v1/stats", timeout=30))
@@ -124,11 +135,14 @@ def wrk_cmd(path, c, threads, extra=()):
     return ["nice", "-n", wrk_nice, "wrk", f"-t{threads}", f"-c{c}", f"-d{secs}s", "--latency",
             "--timeout", "10s", *extra, base + path]
 extra = ["-H", f"Accept-Encoding: {encoding}"] if encoding else []
-if poll_ms > 0:
+def delay_script(ms):
     script = tempfile.NamedTemporaryFile("w", suffix=".lua", delete=False)
-    script.write(f"function delay() return {poll_ms} end\n"); script.close()
-    extra += ["-s", script.name]
-small = [subprocess.Popen(wrk_cmd(p, small_conns, 1), stdout=subprocess.PIPE, text=True)
+    script.write(f"function delay() return {ms} end\n"); script.close()
+    return ["-s", script.name]
+if poll_ms > 0:
+    extra += delay_script(poll_ms)
+small_extra = delay_script(small_delay_ms) if small_delay_ms > 0 else []
+small = [subprocess.Popen(wrk_cmd(p, small_conns, 1, small_extra), stdout=subprocess.PIPE, text=True)
          for p in (["/healthz", "/api/v1/stats"] if small_conns > 0 else [])]
 a = stats(); t = time.time(); c0 = cpu_s()
 wrk = subprocess.run(wrk_cmd(load_path, conns, 2, extra), capture_output=True, text=True).stdout
@@ -137,7 +151,8 @@ small_out = [p.communicate()[0] for p in small]
 stop.set(); th.join(); tl.join()
 frames = b['frames'] - a['frames']
 print(f"ingest under load {frames / dt:,.0f} frames/s, max lag {max(lags):.2f} s, "
-      f"dropped {b['channel_dropped_messages']}; CPU: server {(c1[0] - c0[0]) / dt:.2f} cores, "
+      f"dropped {b['channel_dropped_messages']}; CPU: server {(c1[0] - c0[0]) / dt:.2f} cores "
+      f"(bulk lane {(c1[2] - c0[2]) / dt:.2f}), "
       f"pipeline {(c1[1] - c0[1]) / dt:.2f} cores ({(c1[1] - c0[1]) / max(frames, 1) * 1e6:.2f} CPU-us/frame)")
 time.sleep(3); st = stats()
 print(f"behind the sender's schedule: at most {max(behind):.2f} s during the load, "

@@ -145,14 +145,20 @@ async fn json_errors(response: Response) -> Response {
     Response::from_parts(parts, Body::from(body))
 }
 
-/// A JSON body already serialised, sent in slices; `gzip` when it is gzip-coded.
+/// A JSON body already serialised; `gzip` when it is gzip-coded. A large one is sent in
+/// slices on the server's bulk lane ([`fair`]).
 fn json_sliced(body: Bytes, gzip: bool) -> Response {
+    let body = if body.len() > fair::SLICE_BYTES {
+        Body::new(fair::Sliced::new(body))
+    } else {
+        Body::from(body)
+    };
     let mut response = (
         [(
             header::CONTENT_TYPE,
             HeaderValue::from_static("application/json"),
         )],
-        Body::new(fair::Sliced::new(body)),
+        body,
     )
         .into_response();
     if gzip {

@@ -3,7 +3,7 @@
 //! At fleet scale the full list is large (1,000 tracks are ~1.7 MB of JSON, ~0.5 MB gzipped)
 //! and many clients poll it. One [`CachedTracks`] per registry generation serves them all:
 //! - **Never waited for once built.** A reader that finds the cache stale starts one rebuild
-//!   in the background (on the server's blocking threads, at its niceness) and is answered
+//!   in the background (on the bulk lane's blocking threads, at its niceness) and is answered
 //!   at once from the previous body; only the very first request, or every request with
 //!   `server.tracks_cache_ms = 0`, waits for a build.
 //! - **gzip once per generation.** While clients have asked for gzip within
@@ -139,7 +139,7 @@ impl TracksCache {
             }
         }
         let (reader, level) = (shared.clone(), self.build_level(gzip));
-        let built = tokio::task::spawn_blocking(move || build(&reader, level))
+        let built = super::fair::spawn_build(move || build(&reader, level))
             .await
             .map_err(|e| ApiError::Unavailable(format!("building the track list: {e}")))?;
         let built = Arc::new(built);
@@ -166,7 +166,7 @@ impl TracksCache {
             return;
         }
         let (cache, reader, level) = (self.clone(), shared.clone(), self.build_level(false));
-        tokio::task::spawn_blocking(move || {
+        super::fair::spawn_build(move || {
             // Cleared however the build ends, so a failed one does not stop later ones.
             let _done = Rebuilding(&cache.rebuilding);
             let built = build(&reader, level);

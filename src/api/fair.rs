@@ -28,11 +28,13 @@ use std::task::{Context, Poll};
 use tokio::runtime::Handle;
 
 /// Bytes of a large body handed to hyper at a time (zero-copy slices of the shared body).
-pub const SLICE_BYTES: usize = 16 * 1024;
+/// 64 KiB is one segment on the loopback interface (MTU 65,536): with 1,000 tracks and 256
+/// clients, 64 KiB writes served 2-2.9x the responses per CPU-second of 16 KiB ones (the
+/// cost is mostly per `write` and per segment, not per byte).
+pub const SLICE_BYTES: usize = 64 * 1024;
 
-/// Bytes of large bodies one poll of a connection task may hand to hyper. One slice: a
-/// turn is one `write` of 16 KiB (~10 µs on this machine), so 256 downloading clients
-/// make a round of a few ms.
+/// Bytes of large bodies one poll of a connection task may hand to hyper on the bulk lane:
+/// one slice, one `write`, so the downloads under way take turns in 64 KiB steps.
 pub const TURN_BYTES: usize = SLICE_BYTES;
 
 thread_local! {

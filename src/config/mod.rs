@@ -163,10 +163,15 @@ pub struct ServerConfig {
     pub shutdown_grace_s: f64,
     /// Longest a cached `/api/v1/tracks` body is served, ms (0: never cached).
     pub tracks_cache_ms: u64,
+    /// gzip level of the cached `/api/v1/tracks` body for clients that accept gzip (0: none).
+    pub tracks_gzip_level: u32,
     /// Worker threads of the server's runtime.
     pub threads: usize,
-    /// Niceness added to the server's threads.
+    /// Niceness added to the server's bulk lane (sending large bodies, building them).
     pub nice: i32,
+    /// Niceness added to the server's request lane (accepting, reading requests, small
+    /// answers).
+    pub request_nice: i32,
 }
 
 #[derive(Clone, Copy, Debug, Deserialize, PartialEq)]
@@ -327,8 +332,10 @@ impl Config {
         int_within("server.max_header_bytes", s.max_header_bytes, 8192, 1 << 20)?;
         seconds_within("server.shutdown_grace_s", s.shutdown_grace_s, 0.0, 600.0)?;
         int_within("server.tracks_cache_ms", s.tracks_cache_ms, 0, 10_000)?;
+        int_within("server.tracks_gzip_level", s.tracks_gzip_level, 0, 9)?;
         int_within("server.threads", s.threads, 1, 64)?;
         int_within("server.nice", s.nice, 0, 19)?;
+        int_within("server.request_nice", s.request_nice, 0, 19)?;
         if let Some(r) = self.receiver {
             if !(-90.0..=90.0).contains(&r.lat_deg) {
                 return Err(bad("receiver.lat_deg", "must be within -90..90"));
@@ -553,7 +560,9 @@ mod tests {
             ("[server]\nshutdown_grace_s = -1.0\n", "server.shutdown_grace_s"),
             ("[server]\nthreads = 0\n", "server.threads"),
             ("[server]\nnice = 20\n", "server.nice"),
+            ("[server]\nrequest_nice = -1\n", "server.request_nice"),
             ("[server]\ntracks_cache_ms = 99999999\n", "server.tracks_cache_ms"),
+            ("[server]\ntracks_gzip_level = 10\n", "server.tracks_gzip_level"),
             // Row 12: feeds refused at start, not failing forever after.
             (
                 "[[feeds]]\nname = \"a\"\naddr = \"127.0.0.1:99999\"\nformat = \"beast\"\n",

@@ -408,6 +408,18 @@ impl Aircraft {
         })
     }
 
+    /// The estimate's time and geodetic position (lat, lon in degrees, altitude in m), for
+    /// the trail; `None` without an estimate or when it could not be published.
+    pub fn position(&self) -> Option<(f64, f64, f64, f64)> {
+        let estimate = self.tracker.estimate()?;
+        let frame = self.frame?;
+        if !(estimate.t_s.is_finite() && publishable_point(&estimate.pos_m)) {
+            return None;
+        }
+        let (lat, lon, alt_m) = frame.to_geodetic(&estimate.pos_m);
+        Some((estimate.t_s, lat, lon, alt_m))
+    }
+
     /// The state with predicted positions `horizons_s` seconds ahead (checked as
     /// [`published`](Self::published) is).
     pub fn snapshot_with_predictions(
@@ -475,6 +487,12 @@ pub async fn run_task(
     let mut counts = Counts::default();
     let cancelled = ctx.shutdown.cancelled();
     tokio::pin!(cancelled);
+    // The trail takes a point at most every `min_interval_s` of feed time: checked here on
+    // the message's time, so the estimate is read and converted once per point, whatever
+    // the update rate and however the messages are batched.
+    let history = *ctx.registry.history_config();
+    let trail_interval_s = history.min_interval_s();
+    let mut next_trail_t_s = f64::NEG_INFINITY;
     loop {
         let batch = tokio::select! {
             biased;
@@ -486,6 +504,15 @@ pub async fn run_task(
         };
         for d in &batch.msgs {
             let updated = aircraft.handle(d, &mut counts);
+            if updated
+                && (d.time_s >= next_trail_t_s
+                    || d.time_s < next_trail_t_s - 2.0 * trail_interval_s)
+            {
+                if let Some((t_s, lat, lon, alt_m)) = aircraft.position() {
+                    slot.record(&history, t_s, lat, lon, alt_m);
+                    next_trail_t_s = t_s + trail_interval_s;
+                }
+            }
             if updated && ctx.feed.heard() {
                 if let Some(p) = aircraft.published(&[], &mut counts) {
                     ctx.feed
@@ -522,10 +549,9 @@ pub async fn run_task(
 /// Swaps the aircraft's new snapshot into its slot. The old one is freed when its last
 /// reader lets go. (Recycling it saved one allocation a batch but kept a second snapshot
 /// alive per aircraft, 650 bytes each: memory per aircraft is the scarcer resource.)
-/// The trail takes a point of it when one is due (`[history]`).
 fn publish(aircraft: &mut Aircraft, slot: &Slot, ctx: &TaskContext, counts: &mut Counts) {
     if let Some(p) = aircraft.published(&ctx.prediction_horizons_s, counts) {
-        slot.store(Arc::new(p), ctx.registry.history_config());
+        slot.store(Arc::new(p));
     }
 }
 

@@ -290,17 +290,17 @@ pub struct SlotCell {
 }
 
 impl SlotCell {
-    /// Publishes a snapshot, and adds its position to the trail when one is due.
-    pub fn store(&self, p: Arc<Published>, history: &HistoryConfig) {
-        let t_s = p.estimate.t_s;
-        {
-            let mut trail = self.trail.lock().unwrap_or_else(PoisonError::into_inner);
-            if trail.wants(history, t_s) {
-                let (lat, lon, alt_m) = p.frame.to_geodetic(&p.estimate.pos_m);
-                trail.push(history, t_s, lat, lon, alt_m);
-            }
-        }
+    /// Publishes a snapshot.
+    pub fn store(&self, p: Arc<Published>) {
         self.snapshot.store(Some(p));
+    }
+
+    /// Adds an estimated position to the trail (kept if due: see [`Trail::push`]).
+    pub fn record(&self, history: &HistoryConfig, t_s: f64, lat: f64, lon: f64, alt_m: f64) {
+        self.trail
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .push(history, t_s, lat, lon, alt_m);
     }
 
     /// The latest snapshot.

@@ -3,6 +3,7 @@
 //! Errors are `{"error": "..."}` with a 4xx status: 400 for malformed input, 404 for an unknown
 //! aircraft or endpoint.
 
+pub mod readsb;
 pub mod server;
 pub mod stream;
 
@@ -66,6 +67,8 @@ const INDEX_HTML: &str = include_str!("index.html");
 struct ApiState {
     shared: Shared,
     tracks: Arc<TracksCache>,
+    /// `now` of readsb's `aircraft.json`.
+    readsb_now: Arc<readsb::NowClock>,
 }
 
 impl FromRef<ApiState> for Shared {
@@ -87,9 +90,11 @@ pub fn app(shared: Shared) -> Router {
         tracks: Arc::new(TracksCache::new(Duration::from_millis(
             server.tracks_cache_ms,
         ))),
+        readsb_now: Arc::new(readsb::NowClock::default()),
         shared,
     };
-    Router::new()
+    let tar1090_dir = state.shared.config.server.readsb.tar1090_dir.clone();
+    let router = Router::new()
         .route("/", get(|| async { Html(INDEX_HTML) }))
         .route("/api/v1/tracks", get(tracks))
         .route("/api/v1/tracks/{icao}", get(track))
@@ -99,6 +104,26 @@ pub fn app(shared: Shared) -> Router {
         .route("/api/v1/stats", get(stats))
         .route("/healthz", get(healthz))
         .route("/metrics", get(metrics))
+        .route("/data/aircraft.json", get(readsb::aircraft))
+        .route("/data/receiver.json", get(readsb::receiver));
+    // tar1090's page, from the user's copy of its html/ (paths cannot leave the directory;
+    // a file that is not there is a 404 {"error"} like any other); its data/ is ours.
+    let router = if tar1090_dir.is_empty() {
+        router
+    } else {
+        router
+            .route("/tar1090/data/aircraft.json", get(readsb::aircraft))
+            .route("/tar1090/data/receiver.json", get(readsb::receiver))
+            .route(
+                "/tar1090",
+                get(|| async { axum::response::Redirect::permanent("/tar1090/") }),
+            )
+            .nest_service(
+                "/tar1090/",
+                tower_http::services::ServeDir::new(tar1090_dir),
+            )
+    };
+    router
         .fallback(|| async { ApiError::NotFound("no such endpoint".into()) })
         .with_state(state)
         .layer(tower_http::timeout::TimeoutLayer::with_status_code(

@@ -108,6 +108,9 @@ fn publishable(e: &crate::track::Estimate) -> bool {
         && e.mode_probabilities.iter().all(|x| x.is_finite())
 }
 
+/// Messages over which the received power is averaged (readsb averages its last 8).
+const SIGNAL_MEAN_MESSAGES: f32 = 8.0;
+
 /// Variance of a 1-kt velocity quantisation step ((1 kt)^2 / 12), and of a 64-fpm vertical step.
 const KT_QUANT_VAR: f64 = KT_TO_MPS * KT_TO_MPS / 12.0;
 const VRATE_QUANT_VAR: f64 = (64.0 * FPM_TO_MPS) * (64.0 * FPM_TO_MPS) / 12.0;
@@ -177,6 +180,13 @@ impl Aircraft {
     pub fn handle(&mut self, d: &Decoded, counts: &mut Counts) -> bool {
         self.facts.messages += 1;
         self.facts.last_seen = self.facts.last_seen.max(d.time_s);
+        if let Some(signal) = d.signal {
+            let power = (f32::from(signal) / 255.0).powi(2);
+            self.facts.signal_power = Some(match self.facts.signal_power {
+                Some(mean) => mean + (power - mean) / SIGNAL_MEAN_MESSAGES,
+                None => power,
+            });
+        }
         let t = d.time_s;
         let measurement = match d.msg {
             Message::Identification { category, callsign } => {
@@ -208,6 +218,7 @@ impl Aircraft {
                 cpr,
             } => {
                 self.facts.on_ground = false;
+                self.facts.position_type_code = Some(type_code);
                 if alt_source == AltitudeSource::Baro && alt_ft.is_some() {
                     self.facts.baro_alt_ft = alt_ft;
                 }
@@ -227,6 +238,7 @@ impl Aircraft {
                 track_deg,
             } => {
                 self.facts.on_ground = true;
+                self.facts.position_type_code = Some(type_code);
                 let fix = self.cpr.surface(t, cpr);
                 let mut m = self.position_measurement(t, fix, None, type_code, counts);
                 if let (Some(m), Some(speed), Some(track)) = (m.as_mut(), speed_kt, track_deg) {
@@ -239,7 +251,13 @@ impl Aircraft {
                 }
                 m
             }
-            Message::Velocity(v) => self.velocity_measurement(t, &v),
+            Message::Velocity(v) => {
+                self.facts.nac_v = Some(v.nac_v);
+                if v.gnss_minus_baro_ft.is_some() {
+                    self.facts.geom_minus_baro_ft = v.gnss_minus_baro_ft;
+                }
+                self.velocity_measurement(t, &v)
+            }
             Message::AllCall { .. } | Message::Other { .. } => None,
         };
         let Some(m) = measurement else {

@@ -160,6 +160,17 @@ pub struct AircraftFacts {
     pub last_seen: f64,
     pub positions_accepted: u64,
     pub positions_rejected: u64,
+    /// NACv of the last velocity report (DO-260B §2.2.3.2.6.1.5).
+    pub nac_v: Option<u8>,
+    /// GNSS minus barometric altitude of the last velocity report that carried it, ft.
+    pub geom_minus_baro_ft: Option<i32>,
+    /// Type code of the last position report (it gives the NIC, with the supplements
+    /// unknown: DO-260B Table 2-14).
+    pub position_type_code: Option<u8>,
+    /// Mean received power of the recent messages, as a fraction of full scale (Beast's
+    /// signal byte squared over 255^2; an exponential mean over about 8 messages), when the
+    /// feed carries it.
+    pub signal_power: Option<f32>,
 }
 
 /// One aircraft's published snapshot: estimate in the track's plane, the plane, the facts.

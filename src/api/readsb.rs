@@ -32,7 +32,7 @@ const KT_PER_MPS: f64 = 3600.0 / 1852.0;
 const FPM_PER_MPS: f64 = FT_PER_M * 60.0;
 
 /// `aircraft.json`.
-#[derive(Debug, Serialize)]
+#[derive(Debug, Serialize, utoipa::ToSchema)]
 pub struct AircraftJson {
     /// Feed time of the file, s since the epoch, strictly increasing from one response to
     /// the next (see [`NowClock`]).
@@ -43,7 +43,7 @@ pub struct AircraftJson {
 }
 
 /// One aircraft of `aircraft.json`; `None` keys are left out.
-#[derive(Debug, Serialize)]
+#[derive(Debug, Serialize, utoipa::ToSchema)]
 pub struct ReadsbAircraft {
     pub hex: String,
     #[serde(rename = "type")]
@@ -89,7 +89,9 @@ pub struct ReadsbAircraft {
     #[serde(skip_serializing_if = "Option::is_none")]
     pub nac_v: Option<u8>,
     /// Fields derived from MLAT / TIS-B: none.
+    #[schema(value_type = Vec<String>, max_items = 0)]
     pub mlat: [&'static str; 0],
+    #[schema(value_type = Vec<String>, max_items = 0)]
     pub tisb: [&'static str; 0],
     /// Ours: the flight-mode label of the estimate.
     pub mode: &'static str,
@@ -98,7 +100,7 @@ pub struct ReadsbAircraft {
 }
 
 /// `alt_baro`: feet, or `"ground"`.
-#[derive(Debug, Serialize)]
+#[derive(Debug, Serialize, utoipa::ToSchema)]
 #[serde(untagged)]
 pub enum AltBaro {
     Feet(i32),
@@ -106,7 +108,7 @@ pub enum AltBaro {
 }
 
 /// `receiver.json`.
-#[derive(Debug, Serialize)]
+#[derive(Debug, Serialize, utoipa::ToSchema)]
 pub struct ReceiverJson {
     pub version: String,
     /// How often tar1090 fetches `aircraft.json`, ms.
@@ -237,6 +239,8 @@ fn no_cache<T: Serialize>(body: T) -> Response {
 }
 
 /// `GET /data/aircraft.json` (and `/tar1090/data/aircraft.json`).
+#[utoipa::path(get, path = "/data/aircraft.json", tag = "readsb",
+    responses((status = 200, description = "readsb's aircraft.json (README-json.md), the tracker's estimates", body = AircraftJson)))]
 pub(super) async fn aircraft(State(api): State<ApiState>) -> Result<Response, ApiError> {
     let shared = api.shared.clone();
     let clock = api.readsb_now.clone();
@@ -260,6 +264,8 @@ pub(super) async fn aircraft(State(api): State<ApiState>) -> Result<Response, Ap
 }
 
 /// `GET /data/receiver.json` (and `/tar1090/data/receiver.json`).
+#[utoipa::path(get, path = "/data/receiver.json", tag = "readsb",
+    responses((status = 200, description = "readsb's receiver.json", body = ReceiverJson)))]
 pub(super) async fn receiver(State(api): State<ApiState>) -> Response {
     let config = &api.shared.config;
     let receiver = config.receiver;

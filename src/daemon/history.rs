@@ -13,7 +13,7 @@ use serde::Serialize;
 use std::collections::VecDeque;
 
 /// One point as served: feed time, s; position, degrees; altitude, m.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, utoipa::ToSchema)]
 pub struct TrailPoint {
     pub t: f64,
     pub lat: f64,

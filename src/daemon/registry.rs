@@ -24,7 +24,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, PoisonError, RwLock};
 
 /// Probability of each flight mode, as JSON `{"CV": .., "CA": .., ...}`.
-#[derive(Clone, Debug, PartialEq, Serialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, utoipa::ToSchema)]
 pub struct ModeProbabilities {
     #[serde(rename = "CV")]
     pub cv: f64,
@@ -54,10 +54,13 @@ impl From<[f64; 5]> for ModeProbabilities {
 /// One aircraft's published state: the `Track` of the HTTP API and the `--tracks-out` line.
 ///
 /// The first fields are the update-line contract of DESIGN.md; more follow.
-#[derive(Clone, Debug, PartialEq, Serialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, utoipa::ToSchema)]
+#[schema(as = Track)]
 pub struct TrackState {
     /// Feed time of the estimate, s.
     pub t: f64,
+    /// ICAO 24-bit address, 6 lowercase hex digits.
+    #[schema(value_type = String, pattern = "^[0-9a-f]{6}$")]
     pub icao: Icao,
     pub lat: f64,
     pub lon: f64,
@@ -107,17 +110,20 @@ pub struct TrackState {
     pub positions_accepted: u64,
     pub positions_rejected: u64,
     /// Position covariance in the east-north-up axes at the aircraft, m^2 (row-major 3x3).
+    #[schema(value_type = Vec<Vec<f64>>)]
     pub pos_cov_enu_m2: [[f64; 3]; 3],
     /// Velocity covariance in the same axes, (m/s)^2.
+    #[schema(value_type = Vec<Vec<f64>>)]
     pub vel_cov_enu_m2ps2: [[f64; 3]; 3],
     /// Predicted positions at the configured horizons (published snapshots only; empty in
     /// `--tracks-out` lines).
     #[serde(skip_serializing_if = "Vec::is_empty")]
+    #[schema(required = false)]
     pub predictions: Vec<Prediction>,
 }
 
 /// A predicted position (paper 002 §1.3: extrapolation by the current mode's model).
-#[derive(Clone, Debug, PartialEq, Serialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, utoipa::ToSchema)]
 pub struct Prediction {
     /// Seconds ahead of the estimate.
     pub dt_s: f64,

@@ -416,7 +416,7 @@ fn icao_of(path: Result<Path<String>, PathRejection>) -> Result<Icao, ApiError> 
 }
 
 #[utoipa::path(get, path = "/api/v1/tracks/{icao}", tag = "tracks",
-    params(("icao" = String, Path, description = "ICAO address, 6 hex digits")),
+    params(("icao" = String, Path, description = "ICAO address, 6 hex digits", pattern = "^[0-9a-fA-F]{6}$")),
     responses(
         (status = 200, description = "The aircraft's track", body = crate::daemon::registry::TrackState),
         (status = 400, description = "Not 6 hex digits", body = ErrorBody),
@@ -447,7 +447,7 @@ struct PredictionBody {
 
 /// Positions predicted by the current mode's model at the configured horizons.
 #[utoipa::path(get, path = "/api/v1/tracks/{icao}/prediction", tag = "tracks",
-    params(("icao" = String, Path, description = "ICAO address, 6 hex digits")),
+    params(("icao" = String, Path, description = "ICAO address, 6 hex digits", pattern = "^[0-9a-fA-F]{6}$")),
     responses(
         (status = 200, description = "Predicted positions", body = PredictionBody),
         (status = 400, description = "Not 6 hex digits", body = ErrorBody),
@@ -482,7 +482,7 @@ struct HistoryBody {
 
 /// The aircraft's recent trail of estimated positions (`[history]`), oldest first.
 #[utoipa::path(get, path = "/api/v1/tracks/{icao}/history", tag = "tracks",
-    params(("icao" = String, Path, description = "ICAO address, 6 hex digits")),
+    params(("icao" = String, Path, description = "ICAO address, 6 hex digits", pattern = "^[0-9a-fA-F]{6}$")),
     responses(
         (status = 200, description = "The trail, oldest first", body = HistoryBody),
         (status = 400, description = "Not 6 hex digits", body = ErrorBody),

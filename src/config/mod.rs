@@ -8,7 +8,9 @@ use std::path::{Path, PathBuf};
 mod output;
 pub use output::{AsterixConfig, BBox, JsonlConfig, OutputConfig, SbsConfig, SystemRef};
 mod tracker;
+mod web;
 pub use tracker::{DivergenceConfig, GateConfig, HybridConfig, ImmConfig, PerMode, TrackerConfig};
+pub use web::{HistoryConfig, ReadsbConfig, StreamConfig, MAX_HISTORY_POINTS};
 
 /// The defaults, embedded so the binary runs anywhere without the repository.
 pub const DEFAULT_TOML: &str = include_str!("../../config/default.toml");
@@ -124,6 +126,8 @@ pub struct Config {
     /// `[output.*]`: ASTERIX CAT062, SBS and JSON-lines outputs, each off when absent.
     #[serde(default)]
     pub output: OutputConfig,
+    /// `[history]`: the per-aircraft trails.
+    pub history: HistoryConfig,
 }
 
 /// How the pipeline behaves under load (`[pipeline]`).
@@ -172,6 +176,10 @@ pub struct ServerConfig {
     /// Niceness added to the server's request lane (accepting, reading requests, small
     /// answers).
     pub request_nice: i32,
+    /// `[server.stream]`: the server-sent event stream.
+    pub stream: StreamConfig,
+    /// `[server.readsb]`: readsb's JSON and the tar1090 page.
+    pub readsb: ReadsbConfig,
 }
 
 #[derive(Clone, Copy, Debug, Deserialize, PartialEq)]
@@ -209,6 +217,8 @@ pub fn default_silence_timeout_s() -> f64 {
 pub struct ReplayConfig {
     /// Recording to replay when no feed is configured; empty = the embedded recording.
     pub file: String,
+    /// Which embedded recording (`lax`, `afr34zg`) when `file` is empty.
+    pub embedded: String,
     /// `auto` or one of the formats.
     pub format: String,
     /// Feed seconds per wall second; 0 = as fast as possible.
@@ -336,6 +346,9 @@ impl Config {
         int_within("server.threads", s.threads, 1, 64)?;
         int_within("server.nice", s.nice, 0, 19)?;
         int_within("server.request_nice", s.request_nice, 0, 19)?;
+        s.stream.validate()?;
+        s.readsb.validate()?;
+        self.history.validate()?;
         if let Some(r) = self.receiver {
             if !(-90.0..=90.0).contains(&r.lat_deg) {
                 return Err(bad("receiver.lat_deg", "must be within -90..90"));
@@ -368,6 +381,20 @@ impl Config {
                 0.5,
                 86_400.0,
             )?;
+        }
+        if crate::daemon::source::embedded(&self.replay.embedded).is_none() {
+            let names: Vec<&str> = crate::daemon::source::EMBEDDED
+                .iter()
+                .map(|e| e.name)
+                .collect();
+            return Err(bad(
+                "replay.embedded",
+                format!(
+                    "no embedded recording {:?}; expected one of {}",
+                    self.replay.embedded,
+                    names.join(", ")
+                ),
+            ));
         }
         if self.replay.format != "auto" && self.replay.format.parse::<Format>().is_err() {
             return Err(bad(
@@ -563,6 +590,23 @@ mod tests {
             ("[server]\nrequest_nice = -1\n", "server.request_nice"),
             ("[server]\ntracks_cache_ms = 99999999\n", "server.tracks_cache_ms"),
             ("[server]\ntracks_gzip_level = 10\n", "server.tracks_gzip_level"),
+            // Issue 12: the stream, the trails, readsb's view.
+            ("[server.stream]\nmax_updates_per_s = 0.0\n", "server.stream.max_updates_per_s"),
+            ("[server.stream]\nmax_updates_per_s = nan\n", "server.stream.max_updates_per_s"),
+            ("[server.stream]\nstats_period_s = 0.01\n", "server.stream.stats_period_s"),
+            ("[server.stream]\nkeepalive_s = 1e9\n", "server.stream.keepalive_s"),
+            ("[server.stream]\nmax_clients = 0\n", "server.stream.max_clients"),
+            ("[server.stream]\nclient_buffer_bytes = 10\n", "server.stream.client_buffer_bytes"),
+            ("[server.stream]\nbogus = 1\n", "bogus"),
+            ("[replay]\nembedded = \"cdg\"\n", "replay.embedded"),
+            ("[history]\nwindow_minutes = 0.0\n", "history.window_minutes"),
+            ("[history]\nwindow_minutes = inf\n", "history.window_minutes"),
+            ("[history]\nmax_points = 100000000\n", "history.max_points"),
+            ("[server.readsb]\nrefresh_ms = 5\n", "server.readsb.refresh_ms"),
+            (
+                "[server.readsb]\ntar1090_dir = \"/nonexistent/tar1090\"\n",
+                "server.readsb.tar1090_dir",
+            ),
             // Row 12: feeds refused at start, not failing forever after.
             (
                 "[[feeds]]\nname = \"a\"\naddr = \"127.0.0.1:99999\"\nformat = \"beast\"\n",

@@ -13,6 +13,8 @@
 //! [`Published::track_state`]: at fleet scale most snapshots are replaced before anyone
 //! reads them, and converting every one cost a sixth of the CPU.
 
+use super::history::{Trail, TrailPoint};
+use crate::config::HistoryConfig;
 use crate::decode::{Callsign, Icao};
 use crate::track::geo::LocalFrame;
 use crate::track::{Estimate, Lateral, SpeedTrend, TurnDirection, VerticalTrend};
@@ -21,10 +23,10 @@ use nalgebra::{Matrix3, Vector3};
 use serde::Serialize;
 use std::collections::HashMap;
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::{Arc, Mutex};
+use std::sync::{Arc, Mutex, PoisonError};
 
 /// Probability of each flight mode, as JSON `{"CV": .., "CA": .., ...}`.
-#[derive(Clone, Debug, PartialEq, Serialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, utoipa::ToSchema)]
 pub struct ModeProbabilities {
     #[serde(rename = "CV")]
     pub cv: f64,
@@ -54,10 +56,13 @@ impl From<[f64; 5]> for ModeProbabilities {
 /// One aircraft's published state: the `Track` of the HTTP API and the `--tracks-out` line.
 ///
 /// The first fields are the update-line contract of DESIGN.md; more follow.
-#[derive(Clone, Debug, PartialEq, Serialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, utoipa::ToSchema)]
+#[schema(as = Track)]
 pub struct TrackState {
     /// Feed time of the estimate, s.
     pub t: f64,
+    /// ICAO 24-bit address, 6 lowercase hex digits.
+    #[schema(value_type = String, pattern = "^[0-9a-f]{6}$")]
     pub icao: Icao,
     pub lat: f64,
     pub lon: f64,
@@ -107,17 +112,20 @@ pub struct TrackState {
     pub positions_accepted: u64,
     pub positions_rejected: u64,
     /// Position covariance in the east-north-up axes at the aircraft, m^2 (row-major 3x3).
+    #[schema(value_type = Vec<Vec<f64>>)]
     pub pos_cov_enu_m2: [[f64; 3]; 3],
     /// Velocity covariance in the same axes, (m/s)^2.
+    #[schema(value_type = Vec<Vec<f64>>)]
     pub vel_cov_enu_m2ps2: [[f64; 3]; 3],
     /// Predicted positions at the configured horizons (published snapshots only; empty in
     /// `--tracks-out` lines).
     #[serde(skip_serializing_if = "Vec::is_empty")]
+    #[schema(required = false)]
     pub predictions: Vec<Prediction>,
 }
 
 /// A predicted position (paper 002 §1.3: extrapolation by the current mode's model).
-#[derive(Clone, Debug, PartialEq, Serialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, utoipa::ToSchema)]
 pub struct Prediction {
     /// Seconds ahead of the estimate.
     pub dt_s: f64,
@@ -160,6 +168,17 @@ pub struct AircraftFacts {
     pub last_seen: f64,
     pub positions_accepted: u64,
     pub positions_rejected: u64,
+    /// NACv of the last velocity report (DO-260B §2.2.3.2.6.1.5).
+    pub nac_v: Option<u8>,
+    /// GNSS minus barometric altitude of the last velocity report that carried it, ft.
+    pub geom_minus_baro_ft: Option<i32>,
+    /// Type code of the last position report (it gives the NIC, with the supplements
+    /// unknown: DO-260B Table 2-14).
+    pub position_type_code: Option<u8>,
+    /// Mean received power of the recent messages, as a fraction of full scale (Beast's
+    /// signal byte squared over 255^2; an exponential mean over about 8 messages), when the
+    /// feed carries it.
+    pub signal_power: Option<f32>,
 }
 
 /// One aircraft's published snapshot: estimate in the track's plane, the plane, the facts.
@@ -279,8 +298,46 @@ fn category_label(type_code: u8, category: u8) -> String {
     format!("{set}{category}")
 }
 
-/// One aircraft's slot: the task swaps its newest [`Published`] in.
-pub type Slot = Arc<ArcSwapOption<Published>>;
+/// One aircraft's place in the registry: its newest [`Published`], which its task swaps in,
+/// and its trail.
+#[derive(Debug, Default)]
+pub struct SlotCell {
+    snapshot: ArcSwapOption<Published>,
+    /// The recent positions (`[history]`). A std lock, held only to add a point (once per
+    /// batch at most) or to copy the points out, never across an `.await`.
+    trail: Mutex<Trail>,
+}
+
+impl SlotCell {
+    /// Publishes a snapshot.
+    pub fn store(&self, p: Arc<Published>) {
+        self.snapshot.store(Some(p));
+    }
+
+    /// Adds an estimated position to the trail (kept if due: see [`Trail::push`]).
+    pub fn record(&self, history: &HistoryConfig, t_s: f64, lat: f64, lon: f64, alt_m: f64) {
+        self.trail
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .push(history, t_s, lat, lon, alt_m);
+    }
+
+    /// The latest snapshot.
+    pub fn load(&self) -> Option<Arc<Published>> {
+        self.snapshot.load_full()
+    }
+
+    /// The trail's points, oldest first.
+    pub fn trail(&self) -> Vec<TrailPoint> {
+        self.trail
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .points()
+    }
+}
+
+/// One aircraft's slot, shared by its task (the writer) and the registry (the readers).
+pub type Slot = Arc<SlotCell>;
 
 /// What the API can read: every aircraft's latest snapshot.
 #[derive(Default)]
@@ -295,6 +352,8 @@ pub struct Registry {
     /// a reader that cached what it read at generation g knows it is current while the
     /// generation is still g.
     generation: AtomicU64,
+    /// The trails' bounds (`[history]`).
+    history: HistoryConfig,
 }
 
 impl Registry {
@@ -307,9 +366,22 @@ impl Registry {
         self.slots.store(Arc::new(m));
     }
 
+    /// A registry whose trails follow `history`.
+    pub fn with_history(history: HistoryConfig) -> Self {
+        Self {
+            history,
+            ..Self::default()
+        }
+    }
+
+    /// The trails' bounds.
+    pub fn history_config(&self) -> &HistoryConfig {
+        &self.history
+    }
+
     /// A slot for a new aircraft task (empty until its first estimate).
     pub fn register(&self, icao: Icao) -> Slot {
-        let slot = Arc::new(ArcSwapOption::empty());
+        let slot = Arc::new(SlotCell::default());
         self.rewrite(|m| {
             m.insert(icao, slot.clone());
         });
@@ -337,7 +409,26 @@ impl Registry {
 
     /// One aircraft's latest snapshot, as published.
     pub fn get_published(&self, icao: Icao) -> Option<Arc<Published>> {
-        self.slots.load().get(&icao)?.load_full()
+        self.slots.load().get(&icao)?.load()
+    }
+
+    /// True while the aircraft is registered (with or without an estimate).
+    pub fn contains(&self, icao: Icao) -> bool {
+        self.slots.load().contains_key(&icao)
+    }
+
+    /// One aircraft's trail, oldest first; `None` when it has no published estimate.
+    pub fn history(&self, icao: Icao) -> Option<Vec<TrailPoint>> {
+        let slot = self.slots.load().get(&icao)?.clone();
+        slot.load()?;
+        Some(slot.trail())
+    }
+
+    /// The registered aircraft's addresses, sorted.
+    pub fn addresses(&self) -> Vec<Icao> {
+        let mut v: Vec<Icao> = self.slots.load().keys().copied().collect();
+        v.sort_unstable();
+        v
     }
 
     /// One aircraft's latest state.
@@ -351,7 +442,7 @@ impl Registry {
             .slots
             .load()
             .values()
-            .filter_map(|s| s.load_full())
+            .filter_map(|s| s.load())
             .collect();
         v.sort_by_key(|t| t.icao);
         v

@@ -4,6 +4,7 @@
 //! aircraft or endpoint.
 
 pub mod server;
+mod web;
 
 use crate::daemon::registry::TrackState;
 use crate::daemon::Shared;
@@ -14,7 +15,7 @@ use axum::body::{Body, Bytes};
 use axum::extract::rejection::{PathRejection, QueryRejection};
 use axum::extract::{FromRef, Path, Query, State};
 use axum::http::{header, HeaderValue, StatusCode};
-use axum::response::{Html, IntoResponse, Response};
+use axum::response::{IntoResponse, Response};
 use axum::routing::get;
 use axum::{Json, Router};
 use serde::{Deserialize, Serialize};
@@ -57,9 +58,6 @@ struct ErrorBody {
     error: String,
 }
 
-/// A live table of the tracks (the map page comes later).
-const INDEX_HTML: &str = include_str!("index.html");
-
 /// The API's state: the daemon's shared state and the cached `/api/v1/tracks` body.
 #[derive(Clone)]
 struct ApiState {
@@ -88,8 +86,9 @@ pub fn app(shared: Shared) -> Router {
         ))),
         shared,
     };
+    let pages = web::routes(&state.shared.config);
     Router::new()
-        .route("/", get(|| async { Html(INDEX_HTML) }))
+        .merge(pages)
         .route("/api/v1/tracks", get(tracks))
         .route("/api/v1/tracks/{icao}", get(track))
         .route("/api/v1/tracks/{icao}/prediction", get(prediction))

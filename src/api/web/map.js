@@ -1,0 +1,691 @@
+// The live map (issue 12): every track the daemon serves, from its event stream
+// (GET api/v1/stream: `track`, `retire` and `stats` events), drawn on Leaflet over the
+// embedded world outline. No polling: one EventSource, reconnected by the browser (and by us
+// when the browser gives up), and one history request per aircraft when it first appears.
+//
+// Responsiveness with 1,000 aircraft: events only record the newest state per aircraft; the
+// map, the panel and the list are updated once per animation frame (the list at most every
+// LIST_REFRESH_MS); vectors (trails, ellipses, predictions) are drawn on Leaflet's canvas
+// renderer, the static layers (land, range rings) on a canvas of their own.
+
+import { ellipseLatLngs, offsetLatLon } from "./geo.js";
+
+const L = window.L;
+const topojson = window.topojson;
+const SETTINGS = JSON.parse(document.getElementById("map-settings").textContent);
+
+/** Flight modes: label, colour, meaning. */
+const MODES = [
+  ["CV", "#2f6fd6", "constant velocity"],
+  ["CA", "#e08600", "along-track acceleration"],
+  ["CT", "#d62f5b", "coordinated turn"],
+  ["CH", "#1f9e55", "climb or descent"],
+  ["CHCA", "#8b4fd0", "climb or descent, accelerating"],
+];
+const COLOUR = Object.fromEntries(MODES.map(([m, c]) => [m, c]));
+const colourOf = (mode) => COLOUR[mode] ?? "#6b7280";
+
+/** Ellipses and prediction circles at this many sigma. */
+const SIGMA_K = 2;
+/** Vertices of an uncertainty ellipse. */
+const ELLIPSE_VERTICES = 36;
+/** Points kept in a trail. */
+const TRAIL_MAX_POINTS = 600;
+/** A trail point at most every this much feed time, s. */
+const TRAIL_STEP_S = 1;
+/** History requests in flight at once (a thousand aircraft appear at once on connect). */
+const HISTORY_CONCURRENCY = 4;
+/** The aircraft list is redrawn at most this often, ms. */
+const LIST_REFRESH_MS = 500;
+/** The side panel is redrawn at most this often, ms. */
+const PANEL_REFRESH_MS = 250;
+/** Rows the list shows at most (the count above it says how many match). */
+const LIST_MAX_ROWS = 400;
+/** Reconnection delays when the browser gives up on the stream, ms. */
+const RECONNECT_MIN_MS = 1000;
+const RECONNECT_MAX_MS = 30000;
+
+const FT_PER_M = 1 / 0.3048;
+const KT_PER_MPS = 3600 / 1852;
+
+const $ = (id) => document.getElementById(id);
+const esc = (s) =>
+  String(s).replace(/[&<>"']/g, (c) => ({ "&": "&amp;", "<": "&lt;", ">": "&gt;", '"': "&quot;", "'": "&#39;" })[c]);
+const fin = (x) => typeof x === "number" && Number.isFinite(x);
+const fmt = (x, digits) => (fin(x) ? x.toFixed(digits) : "-");
+
+// ---------------------------------------------------------------------------------------
+// The map and its layers.
+
+const map = L.map("map", { preferCanvas: true, worldCopyJump: true, minZoom: 2, zoomControl: true });
+map.createPane("land").style.zIndex = 250;
+const staticRenderer = L.canvas({ pane: "land", padding: 0.5 });
+const renderer = L.canvas({ padding: 0.5 });
+
+const land = L.layerGroup();
+const trails = L.layerGroup().addTo(map);
+const ellipses = L.layerGroup().addTo(map);
+const predictions = L.layerGroup().addTo(map);
+const rings = L.layerGroup().addTo(map);
+const labels = L.layerGroup().addTo(map);
+const aircraftLayer = L.layerGroup().addTo(map);
+
+fetch("assets/vendor/world-atlas/land-110m.json")
+  .then((r) => r.json())
+  .then((topo) => {
+    L.geoJSON(topojson.feature(topo, topo.objects.land), {
+      renderer: staticRenderer,
+      interactive: false,
+      style: { color: "#9c9a8c", weight: 0.8, fillColor: "#f1eee4", fillOpacity: 1 },
+    }).addTo(land);
+  })
+  .catch((e) => console.warn("world outline:", e));
+
+const bases = {};
+if (SETTINGS.tiles) {
+  const tiles = L.tileLayer(SETTINGS.tiles.url, {
+    maxZoom: SETTINGS.tiles.max_zoom,
+    attribution: esc(SETTINGS.tiles.attribution),
+  });
+  bases["Tiles"] = tiles.addTo(map);
+  bases["Outline"] = land;
+} else {
+  land.addTo(map);
+}
+map.attributionControl.addAttribution("Natural Earth");
+L.control
+  .layers(Object.keys(bases).length ? bases : null, {
+    Trails: trails,
+    [`${SIGMA_K}\u03c3 uncertainty`]: ellipses,
+    Predictions: predictions,
+    "Range rings": rings,
+    Labels: labels,
+  })
+  .addTo(map);
+map.on("overlayadd overlayremove", (e) => {
+  if (e.layer === labels) map.getContainer().classList.toggle("hide-labels", e.type === "overlayremove");
+});
+
+const legend = L.control({ position: "bottomright" });
+legend.onAdd = () => {
+  const div = L.DomUtil.create("div", "legend");
+  const horizons = (SETTINGS.prediction_horizons_s ?? []).map((h) => `+${h} s`).join(", ");
+  div.innerHTML =
+    MODES.map(([m, c, what]) => `<div class="row"><span class="swatch" style="background:${c}"></span><b>${m}</b> ${what}</div>`).join("") +
+    `<div class="note">Shaded: ${SIGMA_K}\u03c3 position ellipse. Dashed: predicted path ${esc(horizons)}, circles ${SIGMA_K}\u03c3. Red outline: diverging.</div>`;
+  L.DomEvent.disableClickPropagation(div);
+  return div;
+};
+legend.addTo(map);
+
+let fitted = false;
+if (SETTINGS.receiver && fin(SETTINGS.receiver.lat_deg) && fin(SETTINGS.receiver.lon_deg)) {
+  const { lat_deg: lat, lon_deg: lon } = SETTINGS.receiver;
+  L.circleMarker([lat, lon], { renderer: staticRenderer, radius: 4, color: "#111", weight: 2, fillColor: "#fff", fillOpacity: 1 })
+    .bindTooltip("receiver")
+    .addTo(rings);
+  let outer = 0;
+  for (const km of SETTINGS.range_rings_km ?? []) {
+    outer = Math.max(outer, km);
+    L.circle([lat, lon], { renderer: staticRenderer, radius: km * 1000, color: "#4a5866", weight: 1, dashArray: "3 5", fill: false, interactive: false }).addTo(rings);
+    L.tooltip({ permanent: true, direction: "center", className: "ring-label" })
+      .setLatLng(offsetLatLon(lat, lon, 0, km * 1000))
+      .setContent(`${km} km`)
+      .addTo(rings);
+  }
+  const r = Math.max(outer, 100) * 1000;
+  map.fitBounds([offsetLatLon(lat, lon, -r, -r), offsetLatLon(lat, lon, r, r)]);
+  fitted = true;
+} else {
+  map.setView([30, 0], 2);
+}
+
+// ---------------------------------------------------------------------------------------
+// Aircraft.
+
+/** Plane silhouette pointing north, 20x20. */
+const PLANE_SVG =
+  '<svg viewBox="-10 -10 20 20" width="20" height="20"><path d="M0,-9 L1.3,-3 L8.5,1.2 L8.5,2.8 L1.3,0.9 L0.9,5.6 L3.2,7.4 L3.2,8.6 L0,7.8 L-3.2,8.6 L-3.2,7.4 L-0.9,5.6 L-1.3,0.9 L-8.5,2.8 L-8.5,1.2 L-1.3,-3 Z"/></svg><div class="ac-label"></div>';
+
+/** icao -> Aircraft on the page. */
+const aircraft = new Map();
+/** Newest state per aircraft, not yet drawn. */
+const pending = new Map();
+/** Aircraft retired, not yet removed. */
+const retired = new Set();
+let selected = null;
+
+class Aircraft {
+  constructor(t) {
+    this.icao = t.icao;
+    this.track = t;
+    this.trail = [];
+    this.trailT = [];
+    this.shown = false;
+    this.labelText = "";
+    this.classes = "";
+    this.angle = null;
+    this.mode = null;
+    this.marker = L.marker([t.lat, t.lon], {
+      icon: L.divIcon({ className: "ac-marker", html: PLANE_SVG, iconSize: [20, 20], iconAnchor: [10, 10] }),
+      keyboard: false,
+      title: t.icao,
+    });
+    this.marker.on("click", () => select(this.icao, false));
+    this.marker.on("add", () => {
+      this.labelText = "";
+      this.classes = "";
+      this.angle = null;
+      this.styleMarker();
+    });
+    this.trailLine = L.polyline([], { renderer, weight: 1.5, opacity: 0.7, interactive: false });
+    this.ellipse = L.polygon([], { renderer, weight: 1, opacity: 0.8, fillOpacity: 0.18, interactive: false });
+    this.predLine = L.polyline([], { renderer, weight: 1.2, opacity: 0.8, dashArray: "4 4", interactive: false });
+    this.predCircles = [];
+  }
+
+  /** The marker's element's rotation, colour, classes and label, touched only when changed. */
+  styleMarker() {
+    const el = this.marker.getElement();
+    if (!el) return;
+    const t = this.track;
+    el.dataset.icao = this.icao;
+    const classes = `${t.on_ground ? " ground" : ""}${t.diverging ? " diverging" : ""}${this.icao === selected ? " selected" : ""}`;
+    if (classes !== this.classes) {
+      el.className = el.className.replace(/ (ground|diverging|selected)/g, "") + classes;
+      this.classes = classes;
+    }
+    const angle = fin(t.track_deg) ? Math.round(t.track_deg) : 0;
+    if (angle !== this.angle) {
+      el.firstChild.style.transform = `rotate(${angle}deg)`;
+      this.angle = angle;
+    }
+    el.style.color = colourOf(t.mode);
+    const text = labelOf(t);
+    if (text !== this.labelText) {
+      el.lastChild.textContent = text;
+      this.labelText = text;
+    }
+  }
+
+  /** Draws state `t`. */
+  update(t) {
+    this.track = t;
+    this.marker.setLatLng([t.lat, t.lon]);
+    this.styleMarker();
+    if (t.mode !== this.mode) {
+      const c = colourOf(t.mode);
+      for (const v of [this.trailLine, this.ellipse, this.predLine, ...this.predCircles]) v.setStyle({ color: c });
+      this.mode = t.mode;
+    }
+    this.extendTrail(t.t, t.lat, t.lon);
+    const e = ellipseLatLngs(t.lat, t.lon, t.pos_cov_enu_m2, SIGMA_K, ELLIPSE_VERTICES);
+    if (e) this.ellipse.setLatLngs(e);
+    this.drawPredictions(t);
+    this.applyFilter();
+  }
+
+  extendTrail(t, lat, lon) {
+    const last = this.trailT.length ? this.trailT[this.trailT.length - 1] : -Infinity;
+    if (fin(t) && t - last >= TRAIL_STEP_S) {
+      this.trail.push([lat, lon]);
+      this.trailT.push(t);
+      if (this.trail.length > TRAIL_MAX_POINTS) {
+        this.trail.shift();
+        this.trailT.shift();
+      }
+    }
+    this.trailLine.setLatLngs([...this.trail, [lat, lon]]);
+  }
+
+  /** History points (oldest first) before the first point heard live. */
+  prependHistory(points) {
+    const first = this.trailT.length ? this.trailT[0] : Infinity;
+    const older = points.filter((p) => fin(p.t) && fin(p.lat) && fin(p.lon) && p.t < first);
+    const keep = older.slice(Math.max(0, older.length - (TRAIL_MAX_POINTS - this.trail.length)));
+    this.trail = keep.map((p) => [p.lat, p.lon]).concat(this.trail);
+    this.trailT = keep.map((p) => p.t).concat(this.trailT);
+    this.trailLine.setLatLngs([...this.trail, [this.track.lat, this.track.lon]]);
+  }
+
+  drawPredictions(t) {
+    const preds = Array.isArray(t.predictions) ? t.predictions.filter((p) => fin(p.lat) && fin(p.lon)) : [];
+    this.predLine.setLatLngs([[t.lat, t.lon], ...preds.map((p) => [p.lat, p.lon])]);
+    while (this.predCircles.length < preds.length) {
+      const c = L.circle([t.lat, t.lon], { renderer, radius: 1, weight: 1, opacity: 0.7, fillOpacity: 0.06, color: colourOf(t.mode), interactive: false });
+      this.predCircles.push(c);
+      if (this.shown) c.addTo(predictions);
+    }
+    while (this.predCircles.length > preds.length) predictions.removeLayer(this.predCircles.pop());
+    preds.forEach((p, i) => {
+      const c = this.predCircles[i];
+      c.setLatLng([p.lat, p.lon]);
+      c.setRadius(fin(p.pos_sigma_m) ? SIGMA_K * p.pos_sigma_m : 0);
+    });
+  }
+
+  /** Shows or hides the aircraft as the list's filters say. */
+  applyFilter() {
+    const show = matches(this.track);
+    if (show === this.shown) return;
+    this.shown = show;
+    const pairs = [
+      [aircraftLayer, this.marker],
+      [trails, this.trailLine],
+      [ellipses, this.ellipse],
+      [predictions, this.predLine],
+      ...this.predCircles.map((c) => [predictions, c]),
+    ];
+    for (const [group, layer] of pairs) {
+      if (show) group.addLayer(layer);
+      else group.removeLayer(layer);
+    }
+  }
+
+  remove() {
+    this.shown = false;
+    this.track = null;
+    aircraftLayer.removeLayer(this.marker);
+    trails.removeLayer(this.trailLine);
+    ellipses.removeLayer(this.ellipse);
+    predictions.removeLayer(this.predLine);
+    for (const c of this.predCircles) predictions.removeLayer(c);
+  }
+}
+
+function altFt(t) {
+  return fin(t.alt_m) ? t.alt_m * FT_PER_M : null;
+}
+
+function labelOf(t) {
+  const name = t.callsign || t.icao;
+  if (t.on_ground) return `${name}\nGND`;
+  const ft = altFt(t);
+  const arrow = t.vertical === "climb" ? " \u2191" : t.vertical === "descent" ? " \u2193" : "";
+  return `${name}\n${ft === null ? "-" : Math.round(ft / 100) * 100} ft${arrow}`;
+}
+
+// History: one request per new aircraft, a few at a time.
+const historyQueue = [];
+let historyInFlight = 0;
+function requestHistory(icao) {
+  historyQueue.push(icao);
+  pumpHistory();
+}
+function pumpHistory() {
+  while (historyInFlight < HISTORY_CONCURRENCY && historyQueue.length) {
+    const icao = historyQueue.shift();
+    if (!aircraft.has(icao)) continue;
+    historyInFlight++;
+    fetch(`api/v1/tracks/${encodeURIComponent(icao)}/history`)
+      .then((r) => (r.ok ? r.json() : null))
+      .then((h) => {
+        const a = aircraft.get(icao);
+        if (a && a.track && h && Array.isArray(h.points)) a.prependHistory(h.points);
+      })
+      .catch(() => {})
+      .finally(() => {
+        historyInFlight--;
+        pumpHistory();
+      });
+  }
+}
+
+// ---------------------------------------------------------------------------------------
+// Filters, list and panel.
+
+const filters = { text: "", modes: new Set(MODES.map(([m]) => m)), altMin: null, altMax: null };
+let sortKey = "callsign";
+let sortDir = 1;
+
+function matches(t) {
+  if (!t) return false;
+  if (!filters.modes.has(t.mode) && COLOUR[t.mode]) return false;
+  if (filters.text) {
+    const q = filters.text;
+    if (!t.icao.includes(q) && !(t.callsign ?? "").toLowerCase().includes(q)) return false;
+  }
+  if (filters.altMin !== null || filters.altMax !== null) {
+    const ft = t.on_ground ? 0 : altFt(t);
+    if (ft === null) return false;
+    if (filters.altMin !== null && ft < filters.altMin) return false;
+    if (filters.altMax !== null && ft > filters.altMax) return false;
+  }
+  return true;
+}
+
+const SORT = {
+  callsign: (t) => (t.callsign || "~" + t.icao).toLowerCase(),
+  icao: (t) => t.icao,
+  mode: (t) => t.mode,
+  alt: (t) => altFt(t) ?? -1e9,
+  gs: (t) => t.ground_speed_mps ?? -1,
+  vs: (t) => t.vertical_rate_mps ?? 0,
+  sigma: (t) => t.pos_sigma_m ?? 1e12,
+  messages: (t) => t.messages ?? 0,
+};
+
+$("f-modes").innerHTML = MODES.map(
+  ([m, c]) => `<label style="color:${c}"><input type="checkbox" value="${m}" checked>${m}</label>`,
+).join("");
+
+function onFilterChange() {
+  filters.text = $("f-search").value.trim().toLowerCase();
+  filters.modes = new Set([...$("f-modes").querySelectorAll("input:checked")].map((i) => i.value));
+  const num = (id) => {
+    const v = $(id).value.trim();
+    return v === "" || !Number.isFinite(Number(v)) ? null : Number(v);
+  };
+  filters.altMin = num("f-alt-min");
+  filters.altMax = num("f-alt-max");
+  for (const a of aircraft.values()) a.applyFilter();
+  renderList();
+}
+for (const id of ["f-search", "f-alt-min", "f-alt-max"]) $(id).addEventListener("input", onFilterChange);
+$("f-modes").addEventListener("change", onFilterChange);
+
+document.querySelector("#list thead").addEventListener("click", (e) => {
+  const key = e.target.closest("th")?.dataset.key;
+  if (!key) return;
+  sortDir = key === sortKey ? -sortDir : 1;
+  sortKey = key;
+  renderList();
+});
+$("list-rows").addEventListener("click", (e) => {
+  const icao = e.target.closest("tr")?.dataset.icao;
+  if (icao) select(icao, true);
+});
+
+let listRendered = 0;
+let listDirty = true;
+function renderList() {
+  listRendered = performance.now();
+  listDirty = false;
+  const shown = [...aircraft.values()].map((a) => a.track).filter(matches);
+  const key = SORT[sortKey];
+  shown.sort((a, b) => {
+    const x = key(a);
+    const y = key(b);
+    return (x < y ? -1 : x > y ? 1 : 0) * sortDir || (a.icao < b.icao ? -1 : 1);
+  });
+  for (const th of document.querySelectorAll("#list th")) {
+    th.classList.toggle("sorted", th.dataset.key === sortKey);
+    th.classList.toggle("asc", sortDir > 0);
+    th.classList.toggle("desc", sortDir < 0);
+  }
+  $("list-count").textContent =
+    `${shown.length} of ${aircraft.size} aircraft` + (shown.length > LIST_MAX_ROWS ? ` (first ${LIST_MAX_ROWS} listed)` : "");
+  $("list-rows").innerHTML = shown
+    .slice(0, LIST_MAX_ROWS)
+    .map((t) => {
+      const ft = altFt(t);
+      return `<tr data-icao="${esc(t.icao)}"${t.icao === selected ? ' class="selected"' : ""}>` +
+        `<td>${esc(t.callsign ?? "")}</td><td>${esc(t.icao)}</td>` +
+        `<td><span class="badge" style="background:${colourOf(t.mode)}">${esc(t.mode)}</span></td>` +
+        `<td class="num">${t.on_ground ? "GND" : ft === null ? "-" : Math.round(ft)}</td>` +
+        `<td class="num">${fmt(t.ground_speed_mps * KT_PER_MPS, 0)}</td>` +
+        `<td class="num">${fmt(t.vertical_rate_mps * FT_PER_M * 60, 0)}</td>` +
+        `<td class="num">${fmt(t.pos_sigma_m, 0)}</td><td class="num">${t.messages ?? ""}</td></tr>`;
+    })
+    .join("");
+}
+
+function select(icao, pan) {
+  const prev = aircraft.get(selected);
+  selected = icao;
+  if (prev) {
+    prev.styleMarker();
+    prev.trailLine.setStyle({ weight: 1.5 });
+  }
+  const a = aircraft.get(icao);
+  if (!a) return;
+  a.styleMarker();
+  a.trailLine.setStyle({ weight: 3 });
+  if (pan) map.panTo([a.track.lat, a.track.lon]);
+  $("panel").hidden = false;
+  renderPanel();
+  renderList();
+}
+$("panel-close").addEventListener("click", () => {
+  const prev = aircraft.get(selected);
+  selected = null;
+  if (prev) {
+    prev.styleMarker();
+    prev.trailLine.setStyle({ weight: 1.5 });
+  }
+  $("panel").hidden = true;
+  renderList();
+});
+
+/** One value of the "every field" table. */
+function fieldValue(v) {
+  if (v === null || v === undefined) return "-";
+  if (typeof v === "number") return Number.isInteger(v) ? String(v) : String(Math.abs(v) >= 1e5 ? v.toFixed(3) : +v.toPrecision(7));
+  if (Array.isArray(v)) {
+    if (v.length && Array.isArray(v[0])) return v.map((row) => row.map(fieldValue).join("  ")).join("<br>");
+    if (v.length && typeof v[0] === "object") return v.map((o) => esc(Object.entries(o).map(([k, x]) => `${k} ${fieldValue(x)}`).join(", "))).join("<br>");
+    return esc(v.map(fieldValue).join(", "));
+  }
+  if (typeof v === "object") return esc(Object.entries(v).map(([k, x]) => `${k} ${fieldValue(x)}`).join(", "));
+  return esc(v);
+}
+
+let panelRendered = 0;
+let panelDirty = false;
+function renderPanel() {
+  panelRendered = performance.now();
+  panelDirty = false;
+  const a = aircraft.get(selected);
+  if (!a || !a.track) {
+    $("panel-body").innerHTML = `<p class="muted">retired (no report for the tracker's retire time)</p>`;
+    return;
+  }
+  const t = a.track;
+  $("panel-title").textContent = t.callsign || t.icao;
+  const age = fin(stats?.feed_time) && fin(t.last_seen) ? Math.max(0, stats.feed_time - t.last_seen) : null;
+  const probs = t.mode_probabilities ?? {};
+  const axis = (name, value) => `<span class="axis">${name} <b>${esc(value ?? "-")}</b></span>`;
+  const ft = altFt(t);
+  $("panel-body").innerHTML =
+    `<div class="sub">${esc(t.icao)}${t.squawk ? ` &middot; squawk ${esc(t.squawk)}` : ""}${t.category ? ` &middot; ${esc(t.category)}` : ""} &middot; ${esc(t.filter)}</div>` +
+    `<div class="axes"><span class="badge" style="background:${colourOf(t.mode)}">${esc(t.mode)}${t.turn ? " " + esc(t.turn) : ""}</span> ` +
+    axis("lateral", t.lateral) + axis("speed", t.speed) + axis("vertical", t.vertical) + `</div>` +
+    `<div class="probs">` +
+    MODES.map(([m, c]) => {
+      const p = fin(probs[m]) ? probs[m] : 0;
+      return `<div class="prob"><span class="name">${m}</span><div class="bar"><div style="width:${(p * 100).toFixed(1)}%;background:${c}"></div></div><span class="val">${(p * 100).toFixed(1)} %</span></div>`;
+    }).join("") +
+    `</div><dl class="facts">` +
+    `<dt>altitude</dt><dd>${t.on_ground ? "on ground" : `${ft === null ? "-" : Math.round(ft)} ft (${fmt(t.alt_m, 0)} m)`}${t.baro_alt_ft != null ? `, baro ${t.baro_alt_ft} ft` : ""}</dd>` +
+    `<dt>ground speed</dt><dd>${fmt(t.ground_speed_mps * KT_PER_MPS, 0)} kt, track ${fmt(t.track_deg, 1)}&deg;</dd>` +
+    `<dt>vertical rate</dt><dd>${fmt(t.vertical_rate_mps * FT_PER_M * 60, 0)} ft/min</dd>` +
+    `<dt>position &sigma;</dt><dd>${fmt(t.pos_sigma_m, 1)} m (velocity ${fmt(t.vel_sigma_mps, 2)} m/s)</dd>` +
+    `<dt>divergence</dt><dd${t.diverging ? ' class="alert"' : ""}>${t.diverging ? "diverging now" : "not diverging"}; ${t.divergence_events ?? 0} events</dd>` +
+    `<dt>messages</dt><dd>${t.messages ?? "-"}; positions ${t.positions_accepted ?? "-"} accepted, ${t.positions_rejected ?? "-"} rejected</dd>` +
+    `<dt>last heard</dt><dd>${age === null ? "-" : `${age.toFixed(1)} s ago`}</dd>` +
+    `</dl><details open><summary>every field</summary><table class="fields">` +
+    Object.entries(t).map(([k, v]) => `<tr><td>${esc(k)}</td><td>${fieldValue(v)}</td></tr>`).join("") +
+    `</table></details>`;
+}
+
+// ---------------------------------------------------------------------------------------
+// Counters.
+
+let stats = null;
+let lastRate = null;
+function renderStats() {
+  if (!stats) return;
+  $("c-aircraft").textContent = String(aircraft.size);
+  $("c-aircraft").title = `tracks_active ${stats.tracks_active}`;
+  const now = performance.now();
+  if (lastRate && fin(stats.frames) && now > lastRate.at) {
+    const rate = ((stats.frames - lastRate.frames) * 1000) / (now - lastRate.at);
+    if (rate >= 0) $("c-rate").textContent = rate >= 100 ? Math.round(rate).toLocaleString("en") : rate.toFixed(1);
+  }
+  if (fin(stats.frames)) lastRate = { frames: stats.frames, at: now };
+  const feeds = Array.isArray(stats.feeds) ? stats.feeds : [];
+  const feed = $("c-feed");
+  if (feeds.length) {
+    const up = feeds.filter((f) => f.connected && !f.silent).length;
+    feed.textContent = `${up}/${feeds.length} up`;
+    feed.title = feeds.map((f) => `${f.name}: ${f.connected ? (f.silent ? "silent" : "connected") : "down"}`).join("\n");
+    feed.classList.toggle("bad", up < feeds.length);
+  } else {
+    feed.textContent = stats.replay_finished ? "replay ended" : "replay";
+    feed.classList.remove("bad");
+  }
+  const lag = $("c-lag");
+  lag.textContent = fin(stats.ingest_lag_s) ? `${stats.ingest_lag_s.toFixed(2)} s` : "-";
+  lag.classList.toggle("bad", !!stats.lagging);
+  if (fin(stats.feed_time) && stats.feed_time > 1e8) {
+    $("c-time").textContent = new Date(stats.feed_time * 1000).toISOString().slice(11, 19);
+  } else if (fin(stats.feed_time)) {
+    $("c-time").textContent = `${stats.feed_time.toFixed(0)} s`;
+  }
+}
+
+// ---------------------------------------------------------------------------------------
+// The frame loop: everything the events changed, drawn once.
+
+let frameQueued = false;
+function queueFrame() {
+  if (!frameQueued) {
+    frameQueued = true;
+    requestAnimationFrame(frame);
+  }
+}
+
+function frame() {
+  frameQueued = false;
+  for (const icao of retired) {
+    const a = aircraft.get(icao);
+    if (a) {
+      a.remove();
+      aircraft.delete(icao);
+      listDirty = true;
+      if (icao === selected) panelDirty = true;
+    }
+  }
+  retired.clear();
+  for (const [icao, t] of pending) {
+    let a = aircraft.get(icao);
+    if (!a) {
+      a = new Aircraft(t);
+      aircraft.set(icao, a);
+      requestHistory(icao);
+    }
+    a.update(t);
+    if (icao === selected) panelDirty = true;
+  }
+  if (pending.size) listDirty = true;
+  pending.clear();
+  const now = performance.now();
+  if (panelDirty && now - panelRendered >= PANEL_REFRESH_MS) renderPanel();
+  if (listDirty && now - listRendered >= LIST_REFRESH_MS) renderList();
+  $("c-aircraft").textContent = String(aircraft.size);
+  // Throttled work left: come back next frame.
+  if (panelDirty || listDirty) queueFrame();
+}
+
+/** Fits the view to the aircraft once, when there is no receiver to centre on. */
+function fitOnce() {
+  if (fitted || aircraft.size === 0) return;
+  const b = L.latLngBounds([...aircraft.values()].map((a) => [a.track.lat, a.track.lon]));
+  if (b.isValid()) map.fitBounds(b.pad(0.1), { maxZoom: 9 });
+  fitted = true;
+}
+
+// ---------------------------------------------------------------------------------------
+// The event stream.
+
+/** Connection number; each aircraft remembers the last one that told of it. */
+let epoch = 0;
+const heardIn = new Map();
+let statsSinceOpen = 0;
+let reconnectMs = RECONNECT_MIN_MS;
+let source = null;
+
+function setStream(state) {
+  const el = $("c-stream");
+  el.textContent = state;
+  el.className = `stream ${state === "live" ? "live" : "down"}`;
+}
+
+function parse(ev) {
+  try {
+    return JSON.parse(ev.data);
+  } catch {
+    return null;
+  }
+}
+
+function connect() {
+  source = new EventSource("api/v1/stream");
+  source.addEventListener("open", () => {
+    epoch++;
+    statsSinceOpen = 0;
+    reconnectMs = RECONNECT_MIN_MS;
+    setStream("live");
+  });
+  source.addEventListener("track", (ev) => {
+    const t = parse(ev);
+    if (!t || typeof t.icao !== "string" || !fin(t.lat) || !fin(t.lon)) return;
+    pending.set(t.icao, t);
+    retired.delete(t.icao);
+    heardIn.set(t.icao, epoch);
+    queueFrame();
+  });
+  source.addEventListener("retire", (ev) => {
+    const r = parse(ev);
+    if (!r || typeof r.icao !== "string") return;
+    pending.delete(r.icao);
+    heardIn.delete(r.icao);
+    retired.add(r.icao);
+    queueFrame();
+  });
+  source.addEventListener("stats", (ev) => {
+    const s = parse(ev);
+    if (!s) return;
+    stats = s;
+    statsSinceOpen++;
+    // After a reconnection the server sent every current track first: by the second stats
+    // event (a second later), aircraft it did not mention were retired while we were away.
+    if (statsSinceOpen === 2 && epoch > 1) {
+      for (const icao of aircraft.keys()) {
+        if ((heardIn.get(icao) ?? 0) < epoch && !pending.has(icao)) {
+          retired.add(icao);
+          heardIn.delete(icao);
+        }
+      }
+      queueFrame();
+    }
+    if (statsSinceOpen >= 1 && pending.size === 0) fitOnce();
+    renderStats();
+  });
+  source.addEventListener("error", () => {
+    if (source.readyState === EventSource.CLOSED) {
+      // The browser gave up (an HTTP error, a wrong type): retry with a growing delay.
+      setStream(`reconnecting in ${Math.round(reconnectMs / 1000)} s`);
+      source.close();
+      setTimeout(connect, reconnectMs);
+      reconnectMs = Math.min(reconnectMs * 2, RECONNECT_MAX_MS);
+    } else {
+      setStream("reconnecting");
+    }
+  });
+}
+connect();
+
+// For tests and the curious: the page's state, read-only.
+window.adsbMap = {
+  map,
+  count: () => aircraftLayer.getLayers().length,
+  icaos: () => [...aircraft.keys()],
+  track: (icao) => aircraft.get(icao)?.track ?? null,
+  markerLatLng: (icao) => {
+    const ll = aircraft.get(icao)?.marker.getLatLng();
+    return ll ? [ll.lat, ll.lng] : null;
+  },
+  selected: () => selected,
+  stream: () => source?.readyState,
+};

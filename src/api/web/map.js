@@ -66,6 +66,10 @@ const land = L.layerGroup();
 const trails = L.layerGroup().addTo(map);
 const ellipses = L.layerGroup().addTo(map);
 const predictions = L.layerGroup().addTo(map);
+/** Every aircraft's prediction circles: off by default (at +120 s in a manoeuvre they span
+ * tens of km); the selected aircraft's are always drawn (selectedCircles). */
+const predictionCircles = L.layerGroup();
+const selectedCircles = L.layerGroup().addTo(map);
 const rings = L.layerGroup().addTo(map);
 const labels = L.layerGroup().addTo(map);
 const aircraftLayer = L.layerGroup().addTo(map);
@@ -98,6 +102,7 @@ L.control
     Trails: trails,
     [`${SIGMA_K}\u03c3 uncertainty`]: ellipses,
     Predictions: predictions,
+    [`Prediction ${SIGMA_K}\u03c3, every aircraft`]: predictionCircles,
     "Range rings": rings,
     Labels: labels,
   })
@@ -112,7 +117,8 @@ legend.onAdd = () => {
   const horizons = (SETTINGS.prediction_horizons_s ?? []).map((h) => `+${h} s`).join(", ");
   div.innerHTML =
     MODES.map(([m, c, what]) => `<div class="row"><span class="swatch" style="background:${c}"></span><b>${m}</b> ${what}</div>`).join("") +
-    `<div class="note">Shaded: ${SIGMA_K}\u03c3 position ellipse. Dashed: predicted path ${esc(horizons)}, circles ${SIGMA_K}\u03c3. Red outline: diverging.</div>`;
+    `<div class="note">Shaded: ${SIGMA_K}\u03c3 position ellipse. Dashed: predicted path at ${esc(horizons)}; ` +
+    `circles: its ${SIGMA_K}\u03c3 (selected aircraft; all from the layer menu). Red glow: diverging.</div>`;
   L.DomEvent.disableClickPropagation(div);
   return div;
 };
@@ -135,7 +141,6 @@ if (SETTINGS.receiver && fin(SETTINGS.receiver.lat_deg) && fin(SETTINGS.receiver
   }
   const r = Math.max(outer, 100) * 1000;
   map.fitBounds([offsetLatLon(lat, lon, -r, -r), offsetLatLon(lat, lon, r, r)]);
-  fitted = true;
 } else {
   map.setView([30, 0], 2);
 }
@@ -254,9 +259,13 @@ class Aircraft {
     while (this.predCircles.length < preds.length) {
       const c = L.circle([t.lat, t.lon], { renderer, radius: 1, weight: 1, opacity: 0.7, fillOpacity: 0.06, color: colourOf(t.mode), interactive: false });
       this.predCircles.push(c);
-      if (this.shown) c.addTo(predictions);
+      if (this.shown) c.addTo(this.icao === selected ? selectedCircles : predictionCircles);
     }
-    while (this.predCircles.length > preds.length) predictions.removeLayer(this.predCircles.pop());
+    while (this.predCircles.length > preds.length) {
+      const c = this.predCircles.pop();
+      predictionCircles.removeLayer(c);
+      selectedCircles.removeLayer(c);
+    }
     preds.forEach((p, i) => {
       const c = this.predCircles[i];
       c.setLatLng([p.lat, p.lon]);
@@ -274,7 +283,7 @@ class Aircraft {
       [trails, this.trailLine],
       [ellipses, this.ellipse],
       [predictions, this.predLine],
-      ...this.predCircles.map((c) => [predictions, c]),
+      ...this.predCircles.map((c) => [this.icao === selected ? selectedCircles : predictionCircles, c]),
     ];
     for (const [group, layer] of pairs) {
       if (show) group.addLayer(layer);
@@ -289,7 +298,10 @@ class Aircraft {
     trails.removeLayer(this.trailLine);
     ellipses.removeLayer(this.ellipse);
     predictions.removeLayer(this.predLine);
-    for (const c of this.predCircles) predictions.removeLayer(c);
+    for (const c of this.predCircles) {
+      predictionCircles.removeLayer(c);
+      selectedCircles.removeLayer(c);
+    }
   }
 }
 
@@ -430,17 +442,24 @@ function renderList() {
     .join("");
 }
 
+/** Marks `a` selected or not: its marker, trail and prediction circles. */
+function highlight(a, on) {
+  if (!a) return;
+  a.styleMarker();
+  a.trailLine.setStyle({ weight: on ? 3 : 1.5 });
+  for (const c of a.predCircles) {
+    (on ? predictionCircles : selectedCircles).removeLayer(c);
+    if (a.shown) (on ? selectedCircles : predictionCircles).addLayer(c);
+  }
+}
+
 function select(icao, pan) {
   const prev = aircraft.get(selected);
   selected = icao;
-  if (prev) {
-    prev.styleMarker();
-    prev.trailLine.setStyle({ weight: 1.5 });
-  }
+  highlight(prev, false);
   const a = aircraft.get(icao);
   if (!a) return;
-  a.styleMarker();
-  a.trailLine.setStyle({ weight: 3 });
+  highlight(a, true);
   if (pan) map.panTo([a.track.lat, a.track.lon]);
   $("panel").hidden = false;
   renderPanel();
@@ -449,10 +468,7 @@ function select(icao, pan) {
 $("panel-close").addEventListener("click", () => {
   const prev = aircraft.get(selected);
   selected = null;
-  if (prev) {
-    prev.styleMarker();
-    prev.trailLine.setStyle({ weight: 1.5 });
-  }
+  highlight(prev, false);
   $("panel").hidden = true;
   renderList();
 });
@@ -587,11 +603,12 @@ function frame() {
   if (panelDirty || listDirty) queueFrame();
 }
 
-/** Fits the view to the aircraft once, when there is no receiver to centre on. */
+/** Fits the view to the aircraft once, when the first state is in (until then the view
+ * holds the receiver's range rings, or the world). */
 function fitOnce() {
   if (fitted || aircraft.size === 0) return;
   const b = L.latLngBounds([...aircraft.values()].map((a) => [a.track.lat, a.track.lon]));
-  if (b.isValid()) map.fitBounds(b.pad(0.1), { maxZoom: 9 });
+  if (b.isValid()) map.fitBounds(b.pad(0.05), { maxZoom: 10 });
   fitted = true;
 }
 

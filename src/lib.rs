@@ -3,11 +3,13 @@
 //! The data path runs one way (see `DESIGN.md`):
 //! [`feed`] (bytes -> [`feed::RawFrame`]) -> [`decode`] (frames -> [`decode::Decoded`])
 //! -> [`daemon`] (a task per aircraft: CPR -> [`track::Measurement`] -> [`track::Tracker`])
-//! -> [`api`] (HTTP, reading published snapshots only).
+//! -> [`api`] (HTTP, reading published snapshots only). [`app`] wires the daemon and the API
+//! together; the daemon never imports the API.
 //!
 //! [`track`] is pure math: no tokio, no I/O, no JSON.
 
 pub mod api;
+pub mod app;
 pub mod config;
 pub mod daemon;
 pub mod decode;

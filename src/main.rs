@@ -1,9 +1,10 @@
 //! The command line: parses arguments, binds sockets, installs SIGINT/SIGTERM, and calls the
 //! library. Everything else lives in the library so tests can run it.
 
+use adsb_tracker::app::{self, RunOptions};
 use adsb_tracker::config::{Config, MAX_SPEED, MIN_SPEED};
 use adsb_tracker::daemon::source::{Replay, ReplayData, EMBEDDED_DEFAULT, EMBEDDED_RECEIVER};
-use adsb_tracker::daemon::{self, RunOptions, Source};
+use adsb_tracker::daemon::Source;
 use adsb_tracker::feed::Format;
 use anyhow::{bail, Context, Result};
 use clap::{Parser, Subcommand};
@@ -300,7 +301,7 @@ async fn main() -> Result<()> {
             };
             tracing::info!("serving on http://{}", listener.local_addr()?);
             install_signals(shutdown.clone());
-            daemon::run(
+            app::run(
                 cfg,
                 RunOptions {
                     source,
@@ -352,7 +353,7 @@ async fn main() -> Result<()> {
             }
             install_signals(shutdown.clone());
             let started = std::time::Instant::now();
-            let summary = daemon::run(
+            let summary = app::run(
                 cfg.clone(),
                 RunOptions {
                     source: Source::Replay(Replay {

@@ -205,8 +205,9 @@ async fn afr34zg_whole_flight() {
 
 /// Runs a replay of `path` to its end without HTTP and returns the final stats.
 async fn replay_to_end(path: &std::path::Path) -> adsb_tracker::daemon::RunSummary {
+    use adsb_tracker::app::{run, RunOptions};
     use adsb_tracker::daemon::source::{Replay, ReplayData};
-    use adsb_tracker::daemon::{run, RunOptions, Source};
+    use adsb_tracker::daemon::Source;
     let config = Config::default_config().unwrap();
     let opts = RunOptions {
         source: Source::Replay(Replay {

@@ -57,7 +57,7 @@ async fn looped(name: &str, passes: u64) -> StatsSnapshot {
         registry: Arc::new(Registry::default()),
         stats: stats.clone(),
         updates: None,
-        outputs: None,
+        feed: Arc::new(adsb_tracker::output::UpdateFeed::default()),
         shutdown: CancellationToken::new(),
         prediction_horizons_s: Vec::new(),
     });

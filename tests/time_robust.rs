@@ -253,8 +253,9 @@ fn beast_flight_survives_corrupted_stamps() {
 /// replay with one frame +30 min gives the clean replay's stats.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn replay_with_one_frame_half_an_hour_off_matches_the_clean_replay() {
+    use adsb_tracker::app::{run, RunOptions};
     use adsb_tracker::daemon::source::{Replay, ReplayData};
-    use adsb_tracker::daemon::{run, RunOptions, Source};
+    use adsb_tracker::daemon::Source;
     let lines = afr34zg_lines();
     let t0 = lines[0].0;
     let counters: Vec<u64> = lines.iter().map(|(t, _)| counter(t0, *t)).collect();

@@ -5,6 +5,7 @@
 
 pub mod server;
 mod web;
+pub mod stream;
 
 use crate::daemon::registry::TrackState;
 use crate::daemon::Shared;
@@ -92,6 +93,8 @@ pub fn app(shared: Shared) -> Router {
         .route("/api/v1/tracks", get(tracks))
         .route("/api/v1/tracks/{icao}", get(track))
         .route("/api/v1/tracks/{icao}/prediction", get(prediction))
+        .route("/api/v1/tracks/{icao}/history", get(history))
+        .route("/api/v1/stream", get(stream::stream))
         .route("/api/v1/stats", get(stats))
         .route("/healthz", get(healthz))
         .route("/metrics", get(metrics))
@@ -411,6 +414,27 @@ async fn prediction(
         mode: t.mode,
         predictions: t.predictions,
     }))
+}
+
+/// `GET /api/v1/tracks/{icao}/history` body.
+#[derive(Serialize)]
+struct HistoryBody {
+    icao: Icao,
+    /// Oldest first.
+    points: Vec<crate::daemon::history::TrailPoint>,
+}
+
+/// The aircraft's recent trail of estimated positions (`[history]`), oldest first.
+async fn history(
+    State(shared): State<Shared>,
+    path: Result<Path<String>, PathRejection>,
+) -> Result<Json<HistoryBody>, ApiError> {
+    let icao = icao_of(path)?;
+    let points = shared
+        .registry
+        .history(icao)
+        .ok_or_else(|| ApiError::NotFound(format!("no track for {icao}")))?;
+    Ok(Json(HistoryBody { icao, points }))
 }
 
 async fn stats(State(shared): State<Shared>) -> Json<crate::daemon::stats::StatsSnapshot> {

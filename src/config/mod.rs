@@ -10,7 +10,9 @@ pub use map::MapConfig;
 mod output;
 pub use output::{AsterixConfig, BBox, JsonlConfig, OutputConfig, SbsConfig, SystemRef};
 mod tracker;
+mod web;
 pub use tracker::{DivergenceConfig, GateConfig, HybridConfig, ImmConfig, PerMode, TrackerConfig};
+pub use web::{HistoryConfig, ReadsbConfig, StreamConfig, MAX_HISTORY_POINTS};
 
 /// The defaults, embedded so the binary runs anywhere without the repository.
 pub const DEFAULT_TOML: &str = include_str!("../../config/default.toml");
@@ -128,6 +130,8 @@ pub struct Config {
     pub output: OutputConfig,
     /// `[map]`: the live map page at `/`.
     pub map: MapConfig,
+    /// `[history]`: the per-aircraft trails.
+    pub history: HistoryConfig,
 }
 
 /// How the pipeline behaves under load (`[pipeline]`).
@@ -171,6 +175,10 @@ pub struct ServerConfig {
     pub threads: usize,
     /// Niceness added to the server's threads.
     pub nice: i32,
+    /// `[server.stream]`: the server-sent event stream.
+    pub stream: StreamConfig,
+    /// `[server.readsb]`: readsb's JSON and the tar1090 page.
+    pub readsb: ReadsbConfig,
 }
 
 #[derive(Clone, Copy, Debug, Deserialize, PartialEq)]
@@ -333,6 +341,9 @@ impl Config {
         int_within("server.tracks_cache_ms", s.tracks_cache_ms, 0, 10_000)?;
         int_within("server.threads", s.threads, 1, 64)?;
         int_within("server.nice", s.nice, 0, 19)?;
+        s.stream.validate()?;
+        s.readsb.validate()?;
+        self.history.validate()?;
         if let Some(r) = self.receiver {
             if !(-90.0..=90.0).contains(&r.lat_deg) {
                 return Err(bad("receiver.lat_deg", "must be within -90..90"));
@@ -559,6 +570,22 @@ mod tests {
             ("[server]\nthreads = 0\n", "server.threads"),
             ("[server]\nnice = 20\n", "server.nice"),
             ("[server]\ntracks_cache_ms = 99999999\n", "server.tracks_cache_ms"),
+            // Issue 12: the stream, the trails, readsb's view.
+            ("[server.stream]\nmax_updates_per_s = 0.0\n", "server.stream.max_updates_per_s"),
+            ("[server.stream]\nmax_updates_per_s = nan\n", "server.stream.max_updates_per_s"),
+            ("[server.stream]\nstats_period_s = 0.01\n", "server.stream.stats_period_s"),
+            ("[server.stream]\nkeepalive_s = 1e9\n", "server.stream.keepalive_s"),
+            ("[server.stream]\nmax_clients = 0\n", "server.stream.max_clients"),
+            ("[server.stream]\nclient_buffer_bytes = 10\n", "server.stream.client_buffer_bytes"),
+            ("[server.stream]\nbogus = 1\n", "bogus"),
+            ("[history]\nwindow_minutes = 0.0\n", "history.window_minutes"),
+            ("[history]\nwindow_minutes = inf\n", "history.window_minutes"),
+            ("[history]\nmax_points = 100000000\n", "history.max_points"),
+            ("[server.readsb]\nrefresh_ms = 5\n", "server.readsb.refresh_ms"),
+            (
+                "[server.readsb]\ntar1090_dir = \"/nonexistent/tar1090\"\n",
+                "server.readsb.tar1090_dir",
+            ),
             // Row 12: feeds refused at start, not failing forever after.
             (
                 "[[feeds]]\nname = \"a\"\naddr = \"127.0.0.1:99999\"\nformat = \"beast\"\n",

@@ -438,8 +438,9 @@ pub struct TaskContext {
     pub stats: Arc<Stats>,
     /// Where update lines go (`--tracks-out`), one `Vec<u8>` of lines per processed batch.
     pub updates: Option<mpsc::Sender<Vec<u8>>>,
-    /// The outputs' broadcast (`[output.*]`): every update's snapshot, never waited for.
-    pub outputs: Option<crate::output::OutputSender>,
+    /// The broadcast of updates (the outputs, the API's event stream): every update's
+    /// snapshot while anyone listens, never waited for.
+    pub feed: Arc<crate::output::UpdateFeed>,
     pub shutdown: CancellationToken,
     /// Horizons of the published predictions, s.
     pub prediction_horizons_s: Vec<f64>,
@@ -485,12 +486,10 @@ pub async fn run_task(
         };
         for d in &batch.msgs {
             let updated = aircraft.handle(d, &mut counts);
-            if updated {
-                if let Some(tx) = &ctx.outputs {
-                    if let Some(p) = aircraft.published(&[], &mut counts) {
-                        // No receiver (every output ended) is not an error of the pipeline.
-                        let _ = tx.send(crate::output::OutputEvent::Update(Arc::new(p)));
-                    }
+            if updated && ctx.feed.heard() {
+                if let Some(p) = aircraft.published(&[], &mut counts) {
+                    ctx.feed
+                        .send(crate::output::OutputEvent::Update(Arc::new(p)));
                 }
             }
             if updated && ctx.updates.is_some() {
@@ -504,12 +503,7 @@ pub async fn run_task(
         }
         // Once per batch, whether or not the tracker moved: the message counts and the
         // identity fields are part of the snapshot too.
-        publish(
-            &mut aircraft,
-            &slot,
-            &ctx.prediction_horizons_s,
-            &mut counts,
-        );
+        publish(&mut aircraft, &slot, &ctx, &mut counts);
         ctx.registry.touch();
         counts.flush(&ctx.stats);
         ctx.stats.observe_latency(batch.arrived.elapsed());
@@ -522,17 +516,16 @@ pub async fn run_task(
     }
     // `tracks_active` is the router's count: it follows the registry, which keeps serving
     // this aircraft's last snapshot after a replay's end.
-    if let Some(tx) = &ctx.outputs {
-        let _ = tx.send(crate::output::OutputEvent::Retired(icao));
-    }
+    ctx.feed.send(crate::output::OutputEvent::Retired(icao));
 }
 
 /// Swaps the aircraft's new snapshot into its slot. The old one is freed when its last
 /// reader lets go. (Recycling it saved one allocation a batch but kept a second snapshot
 /// alive per aircraft, 650 bytes each: memory per aircraft is the scarcer resource.)
-fn publish(aircraft: &mut Aircraft, slot: &Slot, horizons_s: &[f64], counts: &mut Counts) {
-    if let Some(p) = aircraft.published(horizons_s, counts) {
-        slot.store(Some(Arc::new(p)));
+/// The trail takes a point of it when one is due (`[history]`).
+fn publish(aircraft: &mut Aircraft, slot: &Slot, ctx: &TaskContext, counts: &mut Counts) {
+    if let Some(p) = aircraft.published(&ctx.prediction_horizons_s, counts) {
+        slot.store(Arc::new(p), ctx.registry.history_config());
     }
 }
 

@@ -1,11 +1,13 @@
-//! The daemon: wires feeds, the router, aircraft tasks, the registry and the HTTP API.
+//! The daemon: wires feeds, the router, aircraft tasks, the registry and the outputs.
 //!
-//! `main.rs` parses the command line, binds the listener and installs the signal handlers;
-//! [`run`] does everything else and is what the tests call. One [`CancellationToken`] is the
-//! shutdown: every task selects on it, and `run` waits for all of them (dropped senders and
-//! `JoinSet`s, never a polled flag).
+//! It serves nothing itself: it exposes its state and its broadcast of updates ([`Shared`])
+//! and the entry point ([`crate::app`]) hands them to the HTTP API, so `daemon` never
+//! imports `api`. One [`CancellationToken`] is the shutdown: every task selects on it, and
+//! [`Daemon::finished`] waits for all of them (dropped senders and `JoinSet`s, never a
+//! polled flag).
 
 pub mod aircraft;
+pub mod history;
 pub mod pipeline;
 pub mod registry;
 pub mod router;
@@ -16,6 +18,7 @@ use crate::config::{Config, TrackerConfig};
 use crate::decode::cpr::CprConfig;
 use crate::decode::DecoderConfig;
 use crate::feed::tcp::{FeedStatus, FrameBatch, TcpFeed};
+use crate::output::UpdateFeed;
 use crate::track::cv::{CvKalman, CvParams};
 use crate::track::Tracker;
 use aircraft::{AircraftConfig, TaskContext};
@@ -27,7 +30,6 @@ use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::Duration;
 use tokio::io::AsyncWriteExt;
-use tokio::net::TcpListener;
 use tokio::sync::mpsc;
 use tokio_util::sync::CancellationToken;
 
@@ -48,11 +50,9 @@ pub enum Source {
 /// What to run besides the pipeline.
 pub struct RunOptions {
     pub source: Source,
-    /// Serve the HTTP API on this listener.
-    pub listener: Option<TcpListener>,
     /// Write every track update as a JSON line here.
     pub tracks_out: Option<PathBuf>,
-    /// Return once a (non-looping) replay is fully processed, instead of serving until
+    /// Return once a (non-looping) replay is fully processed, instead of running until
     /// shutdown.
     pub exit_at_end: bool,
 }
@@ -93,12 +93,18 @@ pub struct RunSummary {
     pub replay: Option<crate::feed::ParseStats>,
 }
 
-/// Shared state of a running daemon, also the API's state.
+/// What a running daemon exposes to its readers (the HTTP API, wired by the entry point):
+/// its snapshots, its counters, its configuration, its broadcast of updates, and the
+/// shutdown every long-lived reader ends on.
 #[derive(Clone)]
 pub struct Shared {
     pub registry: Arc<Registry>,
     pub stats: Arc<Stats>,
     pub config: Arc<Config>,
+    /// Every tracker update and retirement, while anyone listens ([`UpdateFeed::listen`]).
+    pub feed: Arc<UpdateFeed>,
+    /// Cancelled when the daemon shuts down.
+    pub shutdown: CancellationToken,
 }
 
 /// Builds the tracker `cfg.algorithm` names (validated at config load against
@@ -131,229 +137,284 @@ pub fn build_tracker(cfg: &TrackerConfig) -> Box<dyn Tracker> {
     }
 }
 
-/// Runs the daemon until `shutdown` (or, with `exit_at_end`, the end of a replay).
+/// A running daemon: the pipeline and its feeds, started by [`Daemon::start`]. The entry
+/// point hands [`Daemon::shared`] to whatever serves it (the HTTP API), then waits in
+/// [`Daemon::finished`].
+pub struct Daemon {
+    shared: Shared,
+    opts: RunOptions,
+    pipeline_stop: CancellationToken,
+    outputs_stop: CancellationToken,
+    writer: Option<tokio::task::JoinHandle<Result<(), DaemonError>>>,
+    outputs: Option<crate::output::Outputs>,
+    lag_monitor: tokio::task::JoinHandle<()>,
+    router: tokio::task::JoinHandle<()>,
+    feed_tasks: tokio::task::JoinSet<()>,
+    replay_task:
+        Option<tokio::task::JoinHandle<Result<crate::feed::ParseStats, crate::feed::FeedError>>>,
+}
+
+/// Runs the daemon until `shutdown` (or, with `exit_at_end`, the end of a replay), serving
+/// nothing: [`Daemon::start`] then [`Daemon::finished`].
 pub async fn run(
     config: Config,
     opts: RunOptions,
     shutdown: CancellationToken,
 ) -> Result<RunSummary, DaemonError> {
-    let shared = Shared {
-        registry: Arc::new(Registry::default()),
-        stats: Arc::new(Stats::for_pipeline(
-            config.pipeline.max_queued_frames,
-            config.pipeline.max_lag_s,
-        )),
-        config: Arc::new(config.clone()),
-    };
-    // The pipeline has its own token, a child of the caller's: the end of a replay stops the
-    // pipeline without stopping the caller's other work, and shutdown stops both.
-    let pipeline_stop = shutdown.child_token();
+    Daemon::start(config, opts, shutdown)
+        .await?
+        .finished()
+        .await
+}
 
-    // Track update lines (--tracks-out): a writer task, lossless (tasks wait for it).
-    let (updates_tx, writer) = match &opts.tracks_out {
-        Some(path) => {
-            let file = tokio::fs::File::create(path)
-                .await
-                .map_err(|e| DaemonError::Io(path.display().to_string(), e))?;
-            let (tx, mut rx) = mpsc::channel::<Vec<u8>>(1024);
-            let path = path.clone();
-            let writer = tokio::spawn(async move {
-                let mut out = tokio::io::BufWriter::with_capacity(1 << 20, file);
-                while let Some(lines) = rx.recv().await {
-                    out.write_all(&lines)
-                        .await
-                        .map_err(|e| DaemonError::Io(path.display().to_string(), e))?;
-                }
-                out.flush()
+impl Daemon {
+    /// Starts the outputs, the pipeline and the feeds (or the replay).
+    pub async fn start(
+        config: Config,
+        opts: RunOptions,
+        shutdown: CancellationToken,
+    ) -> Result<Self, DaemonError> {
+        let shared = Shared {
+            registry: Arc::new(Registry::with_history(config.history)),
+            stats: Arc::new(Stats::for_pipeline(
+                config.pipeline.max_queued_frames,
+                config.pipeline.max_lag_s,
+            )),
+            config: Arc::new(config.clone()),
+            feed: Arc::new(UpdateFeed::default()),
+            shutdown: shutdown.clone(),
+        };
+        // The pipeline has its own token, a child of the caller's: the end of a replay stops
+        // the pipeline without stopping the caller's other work, and shutdown stops both.
+        let pipeline_stop = shutdown.child_token();
+
+        // Track update lines (--tracks-out): a writer task, lossless (tasks wait for it).
+        let (updates_tx, writer) = match &opts.tracks_out {
+            Some(path) => {
+                let file = tokio::fs::File::create(path)
                     .await
-                    .map_err(|e| DaemonError::Io(path.display().to_string(), e))
-            });
-            (Some(tx), Some(writer))
-        }
-        None => (None, None),
-    };
+                    .map_err(|e| DaemonError::Io(path.display().to_string(), e))?;
+                let (tx, mut rx) = mpsc::channel::<Vec<u8>>(1024);
+                let path = path.clone();
+                let writer = tokio::spawn(async move {
+                    let mut out = tokio::io::BufWriter::with_capacity(1 << 20, file);
+                    while let Some(lines) = rx.recv().await {
+                        out.write_all(&lines)
+                            .await
+                            .map_err(|e| DaemonError::Io(path.display().to_string(), e))?;
+                    }
+                    out.flush()
+                        .await
+                        .map_err(|e| DaemonError::Io(path.display().to_string(), e))
+                });
+                (Some(tx), Some(writer))
+            }
+            None => (None, None),
+        };
 
-    // The outputs (`[output.*]`): bound before the pipeline starts, so a bad address fails
-    // the start and no update is missed.
-    let outputs_tx = config.output.any().then(crate::output::channel);
-    let outputs_stop = shutdown.child_token();
-    let outputs = match &outputs_tx {
-        Some(tx) => Some(
-            crate::output::Outputs::start(
-                &config.output,
-                tx,
-                shared.stats.outputs.clone(),
-                outputs_stop.clone(),
+        // The outputs (`[output.*]`): bound before the pipeline starts, so a bad address
+        // fails the start and no update is missed. They listen for the daemon's life.
+        let outputs_stop = shutdown.child_token();
+        let outputs = if config.output.any() {
+            shared.feed.hold();
+            Some(
+                crate::output::Outputs::start(
+                    &config.output,
+                    shared.feed.sender(),
+                    shared.stats.outputs.clone(),
+                    outputs_stop.clone(),
+                )
+                .await
+                .map_err(|(what, e)| DaemonError::Io(what, e))?,
             )
-            .await
-            .map_err(|(what, e)| DaemonError::Io(what, e))?,
-        ),
-        None => None,
-    };
-
-    let ctx = Arc::new(TaskContext {
-        registry: shared.registry.clone(),
-        stats: shared.stats.clone(),
-        updates: updates_tx,
-        outputs: outputs_tx,
-        shutdown: pipeline_stop.clone(),
-        prediction_horizons_s: config.tracker.prediction_horizons_s.clone(),
-    });
-    let lag_monitor = tokio::spawn(monitor_lag(shared.stats.clone(), pipeline_stop.clone()));
-
-    let (batch_tx, batch_rx) = mpsc::channel::<FrameBatch>(FEED_CHANNEL_BATCHES);
-    let router_cfg = RouterConfig {
-        decoder: DecoderConfig {
-            fix_single_bit: config.decode.fix_single_bit,
-            recent_address_s: config.decode.recent_address_s,
-        },
-        aircraft: AircraftConfig {
-            cpr: CprConfig {
-                pair_window_s: config.cpr.pair_window_s,
-                max_speed_mps: config.cpr.max_speed_mps,
-                max_surface_speed_mps: config.cpr.max_surface_speed_mps,
-                receiver: config.receiver.map(|r| (r.lat_deg, r.lon_deg)),
-                ..CprConfig::default()
-            },
-            tracker: build_tracker,
-            tracker_config: config.tracker.clone(),
-        },
-        retire_after_s: config.tracker.retire_after_s,
-        idle: Duration::try_from_secs_f64(config.tracker.retire_after_s).unwrap_or(Duration::MAX),
-        channel_capacity: config.tracker.channel_capacity,
-        // A replay always waits: an evaluation must see every frame.
-        overload: if matches!(opts.source, Source::Replay(_)) {
-            router::Overload::Backpressure
         } else {
-            config.pipeline.overload
-        },
-    };
-    // Unconstrained: the router sends one message per aircraft per batch, a thousand at
-    // fleet scale, and tokio's cooperative budget (128 operations) made it yield to the back
-    // of the run queue several times a batch: 35 % more CPU for the same work. It still
-    // yields whenever it waits (an empty feed channel, a full aircraft channel).
-    let router = tokio::spawn(tokio::task::unconstrained(router::run_router(
-        batch_rx,
-        router_cfg,
-        ctx.clone(),
-    )));
-    drop(ctx);
+            None
+        };
 
-    // The feeds.
-    let mut feed_tasks = tokio::task::JoinSet::new();
-    let mut replay_task = None;
-    match &opts.source {
-        Source::Feeds(feeds) => {
-            for f in feeds {
-                let feed = TcpFeed {
-                    name: f.name.clone(),
-                    addr: f.addr.clone(),
-                    format: f.format,
-                    nominal_rate_hz: config.decode.nominal_rate_hz,
-                    silence_timeout_s: f.silence_timeout_s,
-                };
-                let status = Arc::new(FeedStatus::with_silence_timeout(
-                    f.name.as_str(),
-                    feed.silence_timeout(),
-                ));
-                shared.stats.add_feed(status.clone());
-                feed_tasks.spawn(crate::feed::tcp::run_client(
-                    feed,
-                    batch_tx.clone(),
-                    status,
-                    pipeline_stop.clone(),
-                ));
+        let ctx = Arc::new(TaskContext {
+            registry: shared.registry.clone(),
+            stats: shared.stats.clone(),
+            updates: updates_tx,
+            feed: shared.feed.clone(),
+            shutdown: pipeline_stop.clone(),
+            prediction_horizons_s: config.tracker.prediction_horizons_s.clone(),
+        });
+        let lag_monitor = tokio::spawn(monitor_lag(shared.stats.clone(), pipeline_stop.clone()));
+
+        let (batch_tx, batch_rx) = mpsc::channel::<FrameBatch>(FEED_CHANNEL_BATCHES);
+        let router_cfg = RouterConfig {
+            decoder: DecoderConfig {
+                fix_single_bit: config.decode.fix_single_bit,
+                recent_address_s: config.decode.recent_address_s,
+            },
+            aircraft: AircraftConfig {
+                cpr: CprConfig {
+                    pair_window_s: config.cpr.pair_window_s,
+                    max_speed_mps: config.cpr.max_speed_mps,
+                    max_surface_speed_mps: config.cpr.max_surface_speed_mps,
+                    receiver: config.receiver.map(|r| (r.lat_deg, r.lon_deg)),
+                    ..CprConfig::default()
+                },
+                tracker: build_tracker,
+                tracker_config: config.tracker.clone(),
+            },
+            retire_after_s: config.tracker.retire_after_s,
+            idle: Duration::try_from_secs_f64(config.tracker.retire_after_s)
+                .unwrap_or(Duration::MAX),
+            channel_capacity: config.tracker.channel_capacity,
+            // A replay always waits: an evaluation must see every frame.
+            overload: if matches!(opts.source, Source::Replay(_)) {
+                router::Overload::Backpressure
+            } else {
+                config.pipeline.overload
+            },
+        };
+        // Unconstrained: the router sends one message per aircraft per batch, a thousand at
+        // fleet scale, and tokio's cooperative budget (128 operations) made it yield to the
+        // back of the run queue several times a batch: 35 % more CPU for the same work. It
+        // still yields whenever it waits (an empty feed channel, a full aircraft channel).
+        let router = tokio::spawn(tokio::task::unconstrained(router::run_router(
+            batch_rx,
+            router_cfg,
+            ctx.clone(),
+        )));
+        drop(ctx);
+
+        // The feeds.
+        let mut feed_tasks = tokio::task::JoinSet::new();
+        let mut replay_task = None;
+        match &opts.source {
+            Source::Feeds(feeds) => {
+                for f in feeds {
+                    let feed = TcpFeed {
+                        name: f.name.clone(),
+                        addr: f.addr.clone(),
+                        format: f.format,
+                        nominal_rate_hz: config.decode.nominal_rate_hz,
+                        silence_timeout_s: f.silence_timeout_s,
+                    };
+                    let status = Arc::new(FeedStatus::with_silence_timeout(
+                        f.name.as_str(),
+                        feed.silence_timeout(),
+                    ));
+                    shared.stats.add_feed(status.clone());
+                    feed_tasks.spawn(crate::feed::tcp::run_client(
+                        feed,
+                        batch_tx.clone(),
+                        status,
+                        pipeline_stop.clone(),
+                    ));
+                }
+            }
+            Source::Replay(replay) => {
+                let replay = replay.clone();
+                let tx = batch_tx.clone();
+                let stop = pipeline_stop.clone();
+                let progress = Arc::new(ReplayProgress::default());
+                replay_task = Some(tokio::task::spawn_blocking(move || {
+                    source::run_replay(&replay, &tx, &progress, &stop)
+                }));
             }
         }
-        Source::Replay(replay) => {
-            let replay = replay.clone();
-            let tx = batch_tx.clone();
-            let stop = pipeline_stop.clone();
-            let progress = Arc::new(ReplayProgress::default());
-            replay_task = Some(tokio::task::spawn_blocking(move || {
-                source::run_replay(&replay, &tx, &progress, &stop)
-            }));
-        }
+        drop(batch_tx);
+        Ok(Self {
+            shared,
+            opts,
+            pipeline_stop,
+            outputs_stop,
+            writer,
+            outputs,
+            lag_monitor,
+            router,
+            feed_tasks,
+            replay_task,
+        })
     }
-    drop(batch_tx);
 
-    // The HTTP API, on its own runtime: no client can slow the pipeline's.
-    let server = match opts.listener {
-        Some(listener) => Some(
-            crate::api::server::spawn(listener, shared.clone(), shutdown.clone())
-                .map_err(|e| DaemonError::Io("starting the HTTP server".into(), e))?,
-        ),
-        None => None,
-    };
+    /// What the daemon exposes to its readers.
+    pub fn shared(&self) -> &Shared {
+        &self.shared
+    }
 
-    let mut replay_stats = None;
-    if let Some(task) = replay_task {
-        tokio::select! {
-            r = task => replay_stats = Some(r??),
-            _ = shutdown.cancelled() => {}
-        }
-        router_done(router, &pipeline_stop, false).await?;
-        shared
-            .stats
-            .replay_finished
-            .store(replay_stats.is_some(), std::sync::atomic::Ordering::Release);
-        if !opts.exit_at_end {
-            // Keep serving the last state until shutdown.
-            shutdown.cancelled().await;
-        }
-    } else {
-        // Live: the router and the feed clients run until shutdown. One that ends before
-        // has died (a panic): serving a dead pipeline with a healthy /healthz would hide
-        // it, so the daemon stops with an error (a non-zero exit for its supervisor).
-        let mut router = router;
-        let died = tokio::select! {
-            biased;
-            _ = shutdown.cancelled() => None,
-            r = &mut router => Some(match r {
-                Err(e) => format!("the router task failed: {e}"),
-                Ok(()) => "the router task ended".to_string(),
-            }),
-            Some(r) = feed_tasks.join_next(), if !feed_tasks.is_empty() => Some(match r {
-                Err(e) => format!("a feed task failed: {e}"),
-                Ok(()) => "a feed task ended".to_string(),
-            }),
-        };
-        // A task that ended because shutdown began (its token is a child of ours) did not die.
-        let died = died.filter(|_| !shutdown.is_cancelled());
-        pipeline_stop.cancel();
-        while feed_tasks.join_next().await.is_some() {}
-        if let Some(why) = died {
-            tracing::error!("{why}: stopping the daemon");
+    /// Waits until shutdown (or, with `exit_at_end`, the end of a replay), then for every
+    /// task. A pipeline task that dies first cancels the shutdown token (everything else
+    /// stops too) and is the error returned.
+    pub async fn finished(self) -> Result<RunSummary, DaemonError> {
+        let Self {
+            shared,
+            opts,
+            pipeline_stop,
+            outputs_stop,
+            writer,
+            outputs,
+            lag_monitor,
+            router,
+            mut feed_tasks,
+            replay_task,
+        } = self;
+        let shutdown = shared.shutdown.clone();
+        let mut replay_stats = None;
+        if let Some(task) = replay_task {
+            tokio::select! {
+                r = task => replay_stats = Some(r??),
+                _ = shutdown.cancelled() => {}
+            }
+            router_done(router, &pipeline_stop, false).await?;
             shared
                 .stats
-                .pipeline_failed
-                .store(true, std::sync::atomic::Ordering::Release);
-            shutdown.cancel();
-            if let Some(server) = server {
-                let _ = server.stopped().await;
+                .replay_finished
+                .store(replay_stats.is_some(), std::sync::atomic::Ordering::Release);
+            if !opts.exit_at_end {
+                // Keep serving the last state until shutdown.
+                shutdown.cancelled().await;
             }
-            return Err(DaemonError::Died(why));
+        } else {
+            // Live: the router and the feed clients run until shutdown. One that ends before
+            // has died (a panic): serving a dead pipeline with a healthy /healthz would hide
+            // it, so the daemon stops with an error (a non-zero exit for its supervisor).
+            let mut router = router;
+            let died = tokio::select! {
+                biased;
+                _ = shutdown.cancelled() => None,
+                r = &mut router => Some(match r {
+                    Err(e) => format!("the router task failed: {e}"),
+                    Ok(()) => "the router task ended".to_string(),
+                }),
+                Some(r) = feed_tasks.join_next(), if !feed_tasks.is_empty() => Some(match r {
+                    Err(e) => format!("a feed task failed: {e}"),
+                    Ok(()) => "a feed task ended".to_string(),
+                }),
+            };
+            // A task that ended because shutdown began (its token is a child of ours) did
+            // not die.
+            let died = died.filter(|_| !shutdown.is_cancelled());
+            pipeline_stop.cancel();
+            while feed_tasks.join_next().await.is_some() {}
+            if let Some(why) = died {
+                tracing::error!("{why}: stopping the daemon");
+                shared
+                    .stats
+                    .pipeline_failed
+                    .store(true, std::sync::atomic::Ordering::Release);
+                shutdown.cancel();
+                return Err(DaemonError::Died(why));
+            }
+            router_done(router, &pipeline_stop, true).await?;
         }
-        router_done(router, &pipeline_stop, true).await?;
-    }
-    pipeline_stop.cancel();
-    let _ = lag_monitor.await;
-    if let Some(w) = writer {
-        w.await??;
-    }
-    if let Some(outputs) = outputs {
-        outputs_stop.cancel();
-        outputs.stopped().await;
-    }
-    if let Some(server) = server {
-        if let Err(e) = server.stopped().await {
-            tracing::warn!(error = %e, "HTTP server ended with an error");
+        pipeline_stop.cancel();
+        let _ = lag_monitor.await;
+        if let Some(w) = writer {
+            w.await??;
         }
+        if let Some(outputs) = outputs {
+            outputs_stop.cancel();
+            outputs.stopped().await;
+        }
+        Ok(RunSummary {
+            stats: shared.stats.snapshot(),
+            replay: replay_stats,
+        })
     }
-    Ok(RunSummary {
-        stats: shared.stats.snapshot(),
-        replay: replay_stats,
-    })
 }
 
 /// How often the lag monitor looks at the ingest lag.

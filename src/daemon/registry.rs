@@ -11,6 +11,8 @@
 //! [`Published::track_state`]: at fleet scale most snapshots are replaced before anyone
 //! reads them, and converting every one cost a sixth of the CPU.
 
+use super::history::{Trail, TrailPoint};
+use crate::config::HistoryConfig;
 use crate::decode::{Callsign, Icao};
 use crate::track::geo::LocalFrame;
 use crate::track::{Estimate, Lateral, SpeedTrend, TurnDirection, VerticalTrend};
@@ -19,7 +21,7 @@ use nalgebra::{Matrix3, Vector3};
 use serde::Serialize;
 use std::collections::HashMap;
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::{Arc, RwLock};
+use std::sync::{Arc, Mutex, PoisonError, RwLock};
 
 /// Probability of each flight mode, as JSON `{"CV": .., "CA": .., ...}`.
 #[derive(Clone, Debug, PartialEq, Serialize)]
@@ -277,8 +279,46 @@ fn category_label(type_code: u8, category: u8) -> String {
     format!("{set}{category}")
 }
 
-/// One aircraft's slot: the task swaps its newest [`Published`] in.
-pub type Slot = Arc<ArcSwapOption<Published>>;
+/// One aircraft's place in the registry: its newest [`Published`], which its task swaps in,
+/// and its trail.
+#[derive(Debug, Default)]
+pub struct SlotCell {
+    snapshot: ArcSwapOption<Published>,
+    /// The recent positions (`[history]`). A std lock, held only to add a point (once per
+    /// batch at most) or to copy the points out, never across an `.await`.
+    trail: Mutex<Trail>,
+}
+
+impl SlotCell {
+    /// Publishes a snapshot, and adds its position to the trail when one is due.
+    pub fn store(&self, p: Arc<Published>, history: &HistoryConfig) {
+        let t_s = p.estimate.t_s;
+        {
+            let mut trail = self.trail.lock().unwrap_or_else(PoisonError::into_inner);
+            if trail.wants(history, t_s) {
+                let (lat, lon, alt_m) = p.frame.to_geodetic(&p.estimate.pos_m);
+                trail.push(history, t_s, lat, lon, alt_m);
+            }
+        }
+        self.snapshot.store(Some(p));
+    }
+
+    /// The latest snapshot.
+    pub fn load(&self) -> Option<Arc<Published>> {
+        self.snapshot.load_full()
+    }
+
+    /// The trail's points, oldest first.
+    pub fn trail(&self) -> Vec<TrailPoint> {
+        self.trail
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .points()
+    }
+}
+
+/// One aircraft's slot, shared by its task (the writer) and the registry (the readers).
+pub type Slot = Arc<SlotCell>;
 
 /// What the API can read: every aircraft's latest snapshot.
 #[derive(Default)]
@@ -288,12 +328,27 @@ pub struct Registry {
     /// a reader that cached what it read at generation g knows it is current while the
     /// generation is still g.
     generation: AtomicU64,
+    /// The trails' bounds (`[history]`).
+    history: HistoryConfig,
 }
 
 impl Registry {
+    /// A registry whose trails follow `history`.
+    pub fn with_history(history: HistoryConfig) -> Self {
+        Self {
+            history,
+            ..Self::default()
+        }
+    }
+
+    /// The trails' bounds.
+    pub fn history_config(&self) -> &HistoryConfig {
+        &self.history
+    }
+
     /// A slot for a new aircraft task (empty until its first estimate).
     pub fn register(&self, icao: Icao) -> Slot {
-        let slot = Arc::new(ArcSwapOption::empty());
+        let slot = Arc::new(SlotCell::default());
         if let Ok(mut m) = self.slots.write() {
             m.insert(icao, slot.clone());
         }
@@ -322,7 +377,29 @@ impl Registry {
     /// One aircraft's latest snapshot, as published.
     pub fn get_published(&self, icao: Icao) -> Option<Arc<Published>> {
         let m = self.slots.read().ok()?;
-        m.get(&icao)?.load_full()
+        m.get(&icao)?.load()
+    }
+
+    /// True while the aircraft is registered (with or without an estimate).
+    pub fn contains(&self, icao: Icao) -> bool {
+        self.slots.read().is_ok_and(|m| m.contains_key(&icao))
+    }
+
+    /// One aircraft's trail, oldest first; `None` when it has no published estimate.
+    pub fn history(&self, icao: Icao) -> Option<Vec<TrailPoint>> {
+        let slot = self.slots.read().ok()?.get(&icao)?.clone();
+        slot.load()?;
+        Some(slot.trail())
+    }
+
+    /// The registered aircraft's addresses, sorted.
+    pub fn addresses(&self) -> Vec<Icao> {
+        let mut v: Vec<Icao> = match self.slots.read() {
+            Ok(m) => m.keys().copied().collect(),
+            Err(_) => Vec::new(),
+        };
+        v.sort_unstable();
+        v
     }
 
     /// One aircraft's latest state.
@@ -334,7 +411,7 @@ impl Registry {
     /// only to copy the pointers.
     pub fn all_published(&self) -> Vec<Arc<Published>> {
         let mut v: Vec<Arc<Published>> = match self.slots.read() {
-            Ok(m) => m.values().filter_map(|s| s.load_full()).collect(),
+            Ok(m) => m.values().filter_map(|s| s.load()).collect(),
             Err(_) => Vec::new(),
         };
         v.sort_by_key(|t| t.icao);

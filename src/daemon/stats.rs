@@ -81,6 +81,8 @@ pub struct Stats {
     pub http: Arc<HttpStats>,
     /// The outputs' counters (`[output.*]`).
     pub outputs: Arc<crate::output::OutputStats>,
+    /// The event stream's counters (`GET /api/v1/stream`).
+    pub stream: Arc<StreamStats>,
 }
 
 /// The HTTP server's connection counters (`/api/v1/stats` `http`, `/metrics` `adsb_http_*`).
@@ -95,6 +97,81 @@ pub struct HttpStats {
     pub connections_timed_out: Counter,
     /// `accept` failures (out of file descriptors, ...).
     pub accept_errors: Counter,
+}
+
+/// The event stream's counters (`/api/v1/stats` `stream`, `/metrics` `adsb_stream_*`).
+#[derive(Debug, Default)]
+pub struct StreamStats {
+    /// Clients connected now.
+    pub clients: Gauge,
+    /// Clients accepted since start.
+    pub clients_accepted: Counter,
+    /// Clients refused at `server.stream.max_clients`.
+    pub clients_refused: Counter,
+    /// Events sent (`track`, `retire`, `stats`).
+    pub events: Counter,
+    /// Times a client fell behind (the broadcast overtook it, or its buffer was full) and
+    /// was brought up to date from the current state instead of the updates it missed.
+    pub lagged: Counter,
+    /// Updates those clients missed.
+    pub lagged_updates: Counter,
+}
+
+/// A copy of [`StreamStats`].
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct StreamStatsSnapshot {
+    pub clients: i64,
+    pub clients_accepted: u64,
+    pub clients_refused: u64,
+    pub events: u64,
+    pub lagged: u64,
+    pub lagged_updates: u64,
+}
+
+impl StreamStats {
+    pub fn snapshot(&self) -> StreamStatsSnapshot {
+        StreamStatsSnapshot {
+            clients: self.clients.get(),
+            clients_accepted: self.clients_accepted.get(),
+            clients_refused: self.clients_refused.get(),
+            events: self.events.get(),
+            lagged: self.lagged.get(),
+            lagged_updates: self.lagged_updates.get(),
+        }
+    }
+
+    fn register(&self, registry: &mut Registry) {
+        registry.register(
+            "stream_clients",
+            "Event-stream clients connected",
+            self.clients.clone(),
+        );
+        registry.register(
+            "stream_clients_accepted",
+            "Event-stream clients accepted",
+            self.clients_accepted.clone(),
+        );
+        registry.register(
+            "stream_clients_refused",
+            "Event-stream clients refused at server.stream.max_clients",
+            self.clients_refused.clone(),
+        );
+        registry.register(
+            "stream_events",
+            "Server-sent events sent (track, retire, stats)",
+            self.events.clone(),
+        );
+        registry.register(
+            "stream_lagged",
+            "Times an event-stream client fell behind and was resynchronised from the current state",
+            self.lagged.clone(),
+        );
+        registry.register(
+            "stream_lagged_updates",
+            "Track updates event-stream clients missed by falling behind",
+            self.lagged_updates.clone(),
+        );
+    }
 }
 
 /// A copy of [`HttpStats`].
@@ -172,6 +249,7 @@ impl Stats {
             feeds: Mutex::new(Vec::new()),
             http: Arc::new(HttpStats::default()),
             outputs: Arc::new(crate::output::OutputStats::default()),
+            stream: Arc::new(StreamStats::default()),
             registry: Registry::default(),
         };
         registry.register(
@@ -291,6 +369,7 @@ impl Stats {
             s.http.accept_errors.clone(),
         );
         s.outputs.register(&mut registry);
+        s.stream.register(&mut registry);
         Self { registry, ..s }
     }
 
@@ -463,6 +542,7 @@ impl Stats {
             feeds: self.feeds(),
             http: self.http.snapshot(),
             outputs: self.outputs.snapshot(),
+            stream: self.stream.snapshot(),
         }
     }
 }
@@ -564,6 +644,8 @@ pub struct StatsSnapshot {
     pub http: HttpStatsSnapshot,
     /// The outputs' counters.
     pub outputs: crate::output::OutputStatsSnapshot,
+    /// The event stream's clients.
+    pub stream: StreamStatsSnapshot,
 }
 
 /// Counters an aircraft (or the synchronous pipeline) keeps locally and flushes into the

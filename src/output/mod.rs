@@ -21,6 +21,7 @@ use prometheus_client::metrics::counter::Counter;
 use prometheus_client::metrics::family::Family;
 use prometheus_client::metrics::gauge::Gauge;
 use serde::Serialize;
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Arc;
 use tokio::sync::broadcast;
 
@@ -44,6 +45,74 @@ pub type OutputSender = broadcast::Sender<OutputEvent>;
 /// A new output broadcast.
 pub fn channel() -> OutputSender {
     broadcast::channel(OUTPUT_CHANNEL_UPDATES).0
+}
+
+/// The pipeline's broadcast of updates, always there for whoever listens: the outputs for
+/// the daemon's life, the API's event-stream clients while connected.
+///
+/// Nobody listening costs the aircraft tasks one relaxed load per update: they build and
+/// send an update only while [`UpdateFeed::heard`] (tokio's own receiver count takes a
+/// lock).
+#[derive(Debug)]
+pub struct UpdateFeed {
+    tx: OutputSender,
+    /// Listeners now: [`Listener`]s alive plus the outputs' hold.
+    listeners: AtomicUsize,
+}
+
+impl Default for UpdateFeed {
+    fn default() -> Self {
+        Self {
+            tx: channel(),
+            listeners: AtomicUsize::new(0),
+        }
+    }
+}
+
+impl UpdateFeed {
+    /// True while anyone listens: only then are updates worth building.
+    pub fn heard(&self) -> bool {
+        self.listeners.load(Ordering::Relaxed) > 0
+    }
+
+    /// Sends an event to whoever listens; never waits (a slow listener misses the oldest).
+    pub fn send(&self, event: OutputEvent) {
+        // No receiver at all is not an error of the pipeline.
+        let _ = self.tx.send(event);
+    }
+
+    /// A new listener, counted until dropped. It sees the events sent after this call.
+    pub fn listen(self: &Arc<Self>) -> Listener {
+        self.listeners.fetch_add(1, Ordering::Relaxed);
+        Listener {
+            rx: self.tx.subscribe(),
+            feed: self.clone(),
+        }
+    }
+
+    /// The sender, for the outputs, which subscribe for the daemon's life: call
+    /// [`UpdateFeed::hold`] once for them.
+    pub fn sender(&self) -> &OutputSender {
+        &self.tx
+    }
+
+    /// Counts a listener that stays for the daemon's life (the configured outputs).
+    pub fn hold(&self) {
+        self.listeners.fetch_add(1, Ordering::Relaxed);
+    }
+}
+
+/// A receiver of the [`UpdateFeed`], counted as a listener while alive.
+#[derive(Debug)]
+pub struct Listener {
+    pub rx: broadcast::Receiver<OutputEvent>,
+    feed: Arc<UpdateFeed>,
+}
+
+impl Drop for Listener {
+    fn drop(&mut self) {
+        self.feed.listeners.fetch_sub(1, Ordering::Relaxed);
+    }
 }
 
 type Labels = Vec<(&'static str, String)>;

@@ -2,9 +2,10 @@
 //! the daemon over a real socket, as a user would) and a daemon started on port 0.
 #![allow(dead_code)]
 
+use adsb_tracker::app::{run, RunOptions};
 use adsb_tracker::config::Config;
 use adsb_tracker::daemon::source::{Replay, ReplayData};
-use adsb_tracker::daemon::{run, RunOptions, RunSummary, Source};
+use adsb_tracker::daemon::{RunSummary, Source};
 use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::time::Duration;

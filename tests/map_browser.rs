@@ -2,8 +2,8 @@
 //! (real traffic around Los Angeles) in real time x10; `tests/browser/map.mjs` drives
 //! Debian's chromium (headless, through npm `playwright-core`) over the page with every
 //! request off the daemon blocked, and checks that the markers are the tracks
-//! `/api/v1/tracks` lists, that they move as events arrive, and that clicking one opens its
-//! panel with its callsign. `tests/browser/geo.test.mjs` checks the page's geometry.
+//! `/api/v1/tracks` lists (before and after some are retired), that they move as events
+//! arrive, and that clicking one opens its panel with its callsign. `tests/browser/geo.test.mjs` checks the page's geometry.
 //!
 //! Needs `node`, `chromium` (or `CHROMIUM=path`) and `npm ci` in `tests/browser/`. Without
 //! them the tests say why and pass, unless `ADSB_BROWSER_TESTS=required` (as `.ci/run`
@@ -176,6 +176,13 @@ async fn the_map_shows_the_replayed_tracks_in_chromium() {
     assert_eq!(r["same"], true, "{r}");
     assert_eq!(r["markers"], r["tracks"], "{r}");
     assert!(r["markers"].as_u64().unwrap() >= 30, "{r}");
+    // Retired aircraft left the map: later, with some of the first ones retired, the markers
+    // are again exactly the tracks listed.
+    assert!(r["retired"].as_u64().unwrap() >= 3, "{r}");
+    assert_eq!(r["later"]["same"], true, "{r}");
+    // Trails start from the history endpoint.
+    assert!(r["history"]["ok"].as_u64().unwrap() > 0, "{r}");
+    assert!(r["history"]["points"].as_u64().unwrap() > 0, "{r}");
     // Markers move: at 10x, an airliner crosses a pixel of the first view every ~0.2 s.
     assert!(r["moved"].as_u64().unwrap() >= 5, "{r}");
     // The panel of the marker clicked names its callsign.

@@ -4,8 +4,8 @@
 //! aircraft or endpoint.
 
 pub mod server;
-mod web;
 pub mod stream;
+mod web;
 
 use crate::daemon::registry::TrackState;
 use crate::daemon::Shared;

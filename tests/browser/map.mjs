@@ -70,36 +70,53 @@ try {
     // An event stream cut when the page closes is not a failure of the page.
     if (!r.url().includes("/api/v1/stream")) failed.push(`${r.url()}: ${r.failure()?.errorText}`);
   });
-  page.on("response", (r) => {
-    if (r.status() >= 400) failed.push(`${r.url()}: HTTP ${r.status()}`);
+  // A trail asked for an aircraft retired since its last event is a 404 the page expects
+  // (at 10x, 60 s of silence retires an aircraft within 6 s); counted apart.
+  const isHistory = (u) => /\/api\/v1\/tracks\/[0-9a-f]{6}\/history$/.test(new URL(u).pathname);
+  const history = { ok: 0, points: 0, gone: 0 };
+  page.on("response", async (r) => {
+    if (isHistory(r.url()) && r.status() === 404) history.gone++;
+    else if (r.status() >= 400) failed.push(`${r.url()}: HTTP ${r.status()}`);
+    else if (isHistory(r.url()) && r.status() === 200) {
+      history.ok++;
+      history.points += (await r.json().catch(() => ({}))).points?.length ?? 0;
+    }
   });
   page.on("pageerror", (e) => errors.push(String(e)));
   page.on("console", (m) => {
-    if (m.type() === "error") errors.push(m.text());
+    if (m.type() === "error" && !(m.location()?.url && isHistory(m.location().url))) errors.push(m.text());
   });
 
   await page.goto(url, { waitUntil: "load" });
   const markerCount = () => page.evaluate(() => document.querySelectorAll(".ac-marker").length);
   check(await until(30000, async () => (await markerCount()) > 0), "no aircraft marker within 30 s");
+  // The view fits itself to the aircraft once their first state is in.
+  check(await until(10000, () => page.evaluate(() => window.adsbMap.settled())), "the view did not settle in 10 s");
 
   // The markers are the tracks the API lists. Both change as the replay runs, so compare
   // until they agree (a few hundred ms apart at most).
-  let agree = null;
-  await until(20000, async () => {
-    const [icaos, listed] = await Promise.all([
-      page.evaluate(() => [...document.querySelectorAll(".ac-marker")].map((e) => e.dataset.icao).sort()),
-      api("api/v1/tracks"),
-    ]);
-    const want = listed.tracks.map((t) => t.icao).sort();
-    agree = { markers: icaos.length, tracks: want.length, same: JSON.stringify(icaos) === JSON.stringify(want) };
+  const markerIcaos = () =>
+    page.evaluate(() => [...document.querySelectorAll(".ac-marker")].map((e) => e.dataset.icao).sort());
+  async function agreeWithApi(ms) {
+    let agree = null;
+    await until(ms, async () => {
+      const [icaos, listed] = await Promise.all([markerIcaos(), api("api/v1/tracks")]);
+      const want = listed.tracks.map((t) => t.icao).sort();
+      agree = { markers: icaos.length, tracks: want.length, same: JSON.stringify(icaos) === JSON.stringify(want), icaos };
+      return agree.same;
+    }, 300);
     if (!agree.same) {
-      agree.only_map = icaos.filter((i) => !want.includes(i)).slice(0, 5);
-      agree.only_api = want.filter((i) => !icaos.includes(i)).slice(0, 5);
+      const want = (await api("api/v1/tracks")).tracks.map((t) => t.icao);
+      agree.only_map = agree.icaos.filter((i) => !want.includes(i)).slice(0, 5);
+      agree.only_api = want.filter((i) => !agree.icaos.includes(i)).slice(0, 5);
     }
-    return agree.same;
-  }, 300);
-  Object.assign(result, agree);
-  check(agree?.same, `markers and /api/v1/tracks differ: ${JSON.stringify(agree)}`);
+    return agree;
+  }
+  const first = await agreeWithApi(20000);
+  const firstIcaos = first.icaos;
+  delete first.icaos;
+  Object.assign(result, first);
+  check(first.same, `markers and /api/v1/tracks differ: ${JSON.stringify(first)}`);
 
   // Markers move on screen: the pixel positions of the airborne ones, now and a while later.
   const positions = () =>
@@ -124,40 +141,86 @@ try {
   result.moved = moved;
   check(moved > 0, `no marker moved on screen in 15 s (${Object.keys(before).length} airborne)`);
 
-  // Click a marker that has a callsign and is not covered by another one, as a user would.
+  // Click a marker that has a callsign and is not covered by another one, as a user would:
+  // the mouse at its centre. (Playwright's element click waits for the element to stand
+  // still for two frames, which a marker updated by events may not do.)
   const listed = await api("api/v1/tracks");
-  const named = new Map(listed.tracks.filter((t) => t.callsign).map((t) => [t.icao, t.callsign]));
-  const target = await page.evaluate((icaos) => {
-    for (const e of document.querySelectorAll(".ac-marker")) {
-      if (!icaos.includes(e.dataset.icao)) continue;
-      const r = e.getBoundingClientRect();
-      const x = r.x + r.width / 2;
-      const y = r.y + r.height / 2;
-      if (x < 20 || y < 60 || x > innerWidth - 440 || y > innerHeight - 20) continue;
-      const hit = document.elementFromPoint(x, y)?.closest(".ac-marker");
-      if (hit === e) return e.dataset.icao;
+  const rank = { CT: 0, CA: 1, CHCA: 2, CH: 3, CV: 4 };
+  const named = listed.tracks
+    .filter((t) => t.callsign && !t.on_ground)
+    .sort((a, b) => (rank[a.mode] ?? 5) - (rank[b.mode] ?? 5))
+    .map((t) => t.icao);
+  let clicked = null;
+  for (let attempt = 0; attempt < 3 && !clicked; attempt++) {
+    const target = await page.evaluate((icaos) => {
+      for (const icao of icaos) {
+        const e = document.querySelector(`.ac-marker[data-icao="${icao}"]`);
+        if (!e || e.classList.contains("selected")) continue;
+        const r = e.getBoundingClientRect();
+        const x = r.x + r.width / 2;
+        const y = r.y + r.height / 2;
+        if (x < 60 || y < 80 || x > innerWidth - 500 || y > innerHeight - 60) continue;
+        if (document.elementFromPoint(x, y)?.closest(".ac-marker") === e) return { icao: e.dataset.icao, x, y };
+      }
+      return null;
+    }, named);
+    if (!target) break;
+    await page.evaluate(() => {
+      window.__clicks = [];
+      for (const t of ["mousedown", "mouseup", "click"]) {
+        document.addEventListener(t, (e) => window.__clicks.push(`${t}:${e.target.closest?.(".ac-marker")?.dataset.icao ?? e.target.className}`), { capture: true, once: true });
+      }
+    });
+    await page.mouse.click(target.x, target.y);
+    try {
+      await page.waitForSelector("#panel:not([hidden])", { timeout: 5000 });
+    } catch (e) {
+      result.click_events = await page.evaluate(() => window.__clicks);
+      result.click_target = target;
+      throw e;
     }
-    return null;
-  }, [...named.keys()]);
-  check(target !== null, "no uncovered marker with a callsign to click");
-  if (target) {
-    await page.locator(`.ac-marker[data-icao="${target}"]`).click({ timeout: 5000 });
-    await page.waitForSelector("#panel:not([hidden])", { timeout: 5000 });
+    const sel = await page.evaluate(() => window.adsbMap.selected());
+    if (sel === target.icao) clicked = target.icao;
+  }
+  check(clicked !== null, "no uncovered marker with a callsign could be clicked");
+  if (clicked) {
+    // The panel is redrawn at most every 250 ms: give it one turn.
+    await sleep(300);
     const title = (await page.textContent("#panel-title"))?.trim();
-    const one = await api(`api/v1/tracks/${target}`);
-    result.clicked = target;
+    const one = await api(`api/v1/tracks/${clicked}`);
+    result.clicked = clicked;
     result.panel_title = title;
     result.callsign = one.callsign;
-    check(title === one.callsign, `panel of ${target} says ${JSON.stringify(title)}, the API ${JSON.stringify(one.callsign)}`);
+    check(title === one.callsign, `panel of ${clicked} says ${JSON.stringify(title)}, the API ${JSON.stringify(one.callsign)}`);
     const fields = await page.$$eval("#panel-body table.fields tr", (rows) => rows.length);
     result.panel_fields = fields;
-    check(fields >= Object.keys(one).length - 1, `the panel lists ${fields} fields of ${Object.keys(one).length}`);
+    result.api_fields = Object.keys(one).length;
+    check(fields === Object.keys(one).length, `the panel lists ${fields} fields, the API ${Object.keys(one).length}`);
+    const bars = await page.$$eval("#panel-body .prob", (rows) => rows.length);
+    check(bars === 5, `${bars} mode probability bars`);
   }
 
-  await sleep(500);
+  // Retired aircraft leave the map: once some of those first shown are retired (a minute of
+  // feed time without a message), the markers are still exactly the tracks listed.
+  let gone = [];
+  await until(60000, async () => {
+    const now = new Set((await api("api/v1/tracks")).tracks.map((t) => t.icao));
+    gone = firstIcaos.filter((i) => !now.has(i));
+    return gone.length >= 3;
+  }, 1000);
+  result.retired = gone.length;
+  check(gone.length >= 3, `only ${gone.length} of the first aircraft retired in 60 s`);
+  const later = await agreeWithApi(20000);
+  result.later = { markers: later.markers, tracks: later.tracks, same: later.same };
+  check(later.same, `after retirements, markers and /api/v1/tracks differ: ${JSON.stringify({ ...later, icaos: undefined })}`);
+  check(!gone.some((i) => later.icaos.includes(i)), "a retired aircraft is still on the map");
+
+  await sleep(Number(process.env.MAP_SCREENSHOT_WAIT_S ?? 0.5) * 1000);
   await page.screenshot({ path: screenshot });
   result.screenshot = screenshot;
   result.requests = requests;
+  result.history = history;
+  check(history.ok > 0 && history.points > 0, `no trail came from the history endpoint: ${JSON.stringify(history)}`);
   result.offsite = offsite.length;
   result.failed = failed.length;
   result.errors = errors.length;

@@ -125,6 +125,12 @@ legend.onAdd = () => {
 legend.addTo(map);
 
 let fitted = false;
+/** Set by the first `stats` event: the state the server sends first is in by then. */
+let fitDue = false;
+/** True while the view pans or zooms. */
+let moving = false;
+map.on("movestart zoomstart", () => (moving = true));
+map.on("moveend zoomend", () => (moving = false));
 if (SETTINGS.receiver && fin(SETTINGS.receiver.lat_deg) && fin(SETTINGS.receiver.lon_deg)) {
   const { lat_deg: lat, lon_deg: lon } = SETTINGS.receiver;
   L.circleMarker([lat, lon], { renderer: staticRenderer, radius: 4, color: "#111", weight: 2, fillColor: "#fff", fillOpacity: 1 })
@@ -595,6 +601,7 @@ function frame() {
   }
   if (pending.size) listDirty = true;
   pending.clear();
+  if (fitDue) fitOnce();
   const now = performance.now();
   if (panelDirty && now - panelRendered >= PANEL_REFRESH_MS) renderPanel();
   if (listDirty && now - listRendered >= LIST_REFRESH_MS) renderList();
@@ -606,6 +613,7 @@ function frame() {
 /** Fits the view to the aircraft once, when the first state is in (until then the view
  * holds the receiver's range rings, or the world). */
 function fitOnce() {
+  fitDue = false;
   if (fitted || aircraft.size === 0) return;
   const b = L.latLngBounds([...aircraft.values()].map((a) => [a.track.lat, a.track.lon]));
   if (b.isValid()) map.fitBounds(b.pad(0.05), { maxZoom: 10 });
@@ -676,7 +684,10 @@ function connect() {
       }
       queueFrame();
     }
-    if (statsSinceOpen >= 1 && pending.size === 0) fitOnce();
+    if (!fitted) {
+      fitDue = true;
+      queueFrame();
+    }
     renderStats();
   });
   source.addEventListener("error", () => {
@@ -704,5 +715,7 @@ window.adsbMap = {
     return ll ? [ll.lat, ll.lng] : null;
   },
   selected: () => selected,
+  /** Fitted to the aircraft and not moving: what a test waits for before it measures. */
+  settled: () => fitted && !moving,
   stream: () => source?.readyState,
 };

@@ -6,10 +6,18 @@
 // Checks, each a failure (exit 1) when it does not hold:
 // - the page loads with no network: every request not to the daemon is blocked and counted,
 //   and none may be made; no request fails, no script error is thrown;
-// - the aircraft markers are exactly the tracks of /api/v1/tracks (same count, same ICAOs);
-// - markers move on screen as events arrive;
-// - clicking a marker opens its panel, titled with the callsign /api/v1/tracks/{icao} gives;
+// - the aircraft on the map are exactly the tracks of /api/v1/tracks (same ICAOs), every one
+//   in view is drawn, and the pixel under an icon's centre is its mode's colour;
+// - they move on screen as events arrive;
+// - clicking an aircraft opens its panel, titled with the callsign /api/v1/tracks/{icao}
+//   gives, with every field, and the five mode probabilities;
+// - once some of the first aircraft are retired, the map still shows exactly the tracks;
+// - trails start from the history endpoint;
 // and saves a screenshot. Prints one JSON line of what it measured.
+//
+// The aircraft are drawn on a canvas (src/api/web/map.js), so the page's state is read
+// through window.adsbMap: its `drawn()` positions are those of the last drawing, and the
+// pixels there are checked.
 import { chromium } from "playwright-core";
 
 const url = process.argv[2];
@@ -88,19 +96,17 @@ try {
   });
 
   await page.goto(url, { waitUntil: "load" });
-  const markerCount = () => page.evaluate(() => document.querySelectorAll(".ac-marker").length);
-  check(await until(30000, async () => (await markerCount()) > 0), "no aircraft marker within 30 s");
+  const shown = () => page.evaluate(() => window.adsbMap?.icaos().sort() ?? []);
+  check(await until(30000, async () => (await shown()).length > 0), "no aircraft on the map within 30 s");
   // The view fits itself to the aircraft once their first state is in.
   check(await until(10000, () => page.evaluate(() => window.adsbMap.settled())), "the view did not settle in 10 s");
 
-  // The markers are the tracks the API lists. Both change as the replay runs, so compare
+  // The aircraft are the tracks the API lists. Both change as the replay runs, so compare
   // until they agree (a few hundred ms apart at most).
-  const markerIcaos = () =>
-    page.evaluate(() => [...document.querySelectorAll(".ac-marker")].map((e) => e.dataset.icao).sort());
   async function agreeWithApi(ms) {
     let agree = null;
     await until(ms, async () => {
-      const [icaos, listed] = await Promise.all([markerIcaos(), api("api/v1/tracks")]);
+      const [icaos, listed] = await Promise.all([shown(), api("api/v1/tracks")]);
       const want = listed.tracks.map((t) => t.icao).sort();
       agree = { markers: icaos.length, tracks: want.length, same: JSON.stringify(icaos) === JSON.stringify(want), icaos };
       return agree.same;
@@ -116,17 +122,27 @@ try {
   const firstIcaos = first.icaos;
   delete first.icaos;
   Object.assign(result, first);
-  check(first.same, `markers and /api/v1/tracks differ: ${JSON.stringify(first)}`);
+  check(first.same, `aircraft on the map and /api/v1/tracks differ: ${JSON.stringify(first)}`);
 
-  // Markers move on screen: the pixel positions of the airborne ones, now and a while later.
+  // Every aircraft well inside the view was drawn in the last drawing.
+  const undrawn = await page.evaluate(async () => {
+    await new Promise((r) => requestAnimationFrame(() => requestAnimationFrame(r)));
+    const m = window.adsbMap;
+    const inner = m.map.getBounds().pad(-0.05);
+    const drawn = m.drawn();
+    return m.icaos().filter((i) => {
+      const t = m.track(i);
+      return inner.contains([t.lat, t.lon]) && !drawn[i];
+    });
+  });
+  result.undrawn = undrawn.length;
+  check(undrawn.length === 0, `aircraft in view not drawn: ${undrawn.slice(0, 5)}`);
+
+  // Aircraft move on screen: the drawn positions of the airborne ones, now and a while later.
   const positions = () =>
     page.evaluate(() => {
-      const out = {};
-      for (const e of document.querySelectorAll(".ac-marker:not(.ground)")) {
-        const r = e.getBoundingClientRect();
-        out[e.dataset.icao] = [r.x, r.y];
-      }
-      return out;
+      const m = window.adsbMap;
+      return Object.fromEntries(Object.entries(m.drawn()).filter(([i]) => !m.track(i)?.on_ground));
     });
   const before = await positions();
   let moved = 0;
@@ -139,11 +155,11 @@ try {
   }, 500);
   result.airborne = Object.keys(before).length;
   result.moved = moved;
-  check(moved > 0, `no marker moved on screen in 15 s (${Object.keys(before).length} airborne)`);
+  check(moved > 0, `no aircraft moved on screen in 15 s (${Object.keys(before).length} airborne)`);
 
-  // Click a marker that has a callsign and is not covered by another one, as a user would:
-  // the mouse at its centre. (Playwright's element click waits for the element to stand
-  // still for two frames, which a marker updated by events may not do.)
+  // Click an aircraft that has a callsign and stands apart (no other icon or label near),
+  // as a user would: the mouse at its icon's centre. Before that, the pixel there must be
+  // its mode's colour: the icon is really drawn where the page says.
   const listed = await api("api/v1/tracks");
   const rank = { CT: 0, CA: 1, CHCA: 2, CH: 3, CV: 4 };
   const named = listed.tracks
@@ -153,36 +169,39 @@ try {
   let clicked = null;
   for (let attempt = 0; attempt < 3 && !clicked; attempt++) {
     const target = await page.evaluate((icaos) => {
+      const m = window.adsbMap;
+      const drawn = m.drawn();
+      const box = m.map.getContainer().getBoundingClientRect();
+      const canvas = document.querySelector(".aircraft-canvas");
+      const cbox = canvas.getBoundingClientRect();
+      const ctx = canvas.getContext("2d");
+      const scale = canvas.width / cbox.width;
       for (const icao of icaos) {
-        const e = document.querySelector(`.ac-marker[data-icao="${icao}"]`);
-        if (!e || e.classList.contains("selected")) continue;
-        const r = e.getBoundingClientRect();
-        const x = r.x + r.width / 2;
-        const y = r.y + r.height / 2;
-        if (x < 60 || y < 80 || x > innerWidth - 500 || y > innerHeight - 60) continue;
-        if (document.elementFromPoint(x, y)?.closest(".ac-marker") === e) return { icao: e.dataset.icao, x, y };
+        const p = drawn[icao];
+        if (!p || icao === m.selected()) continue;
+        const [x, y] = p;
+        if (x < 60 || y < 60 || x > box.width - 300 || y > box.height - 60) continue;
+        const alone = Object.entries(drawn).every(([o, [ox, oy]]) => o === icao || Math.hypot(ox - x, oy - y) > 90);
+        if (!alone) continue;
+        const px = ctx.getImageData(Math.round((box.left + x - cbox.left) * scale), Math.round((box.top + y - cbox.top) * scale), 1, 1).data;
+        return { icao, x: box.left + x, y: box.top + y, pixel: [px[0], px[1], px[2], px[3]], mode: m.track(icao).mode };
       }
       return null;
     }, named);
     if (!target) break;
-    await page.evaluate(() => {
-      window.__clicks = [];
-      for (const t of ["mousedown", "mouseup", "click"]) {
-        document.addEventListener(t, (e) => window.__clicks.push(`${t}:${e.target.closest?.(".ac-marker")?.dataset.icao ?? e.target.className}`), { capture: true, once: true });
-      }
-    });
+    result.pixel = target.pixel;
+    const colours = { CV: [0x2f, 0x6f, 0xd6], CA: [0xe0, 0x86, 0x00], CT: [0xd6, 0x2f, 0x5b], CH: [0x1f, 0x9e, 0x55], CHCA: [0x8b, 0x4f, 0xd0] };
+    const want = colours[target.mode];
+    check(
+      want && target.pixel[3] > 200 && want.every((c, i) => Math.abs(c - target.pixel[i]) <= 40),
+      `the pixel under ${target.icao}'s icon is ${target.pixel}, not ${target.mode}'s colour ${want}`,
+    );
     await page.mouse.click(target.x, target.y);
-    try {
-      await page.waitForSelector("#panel:not([hidden])", { timeout: 5000 });
-    } catch (e) {
-      result.click_events = await page.evaluate(() => window.__clicks);
-      result.click_target = target;
-      throw e;
-    }
+    await page.waitForSelector("#panel:not([hidden])", { timeout: 5000 });
     const sel = await page.evaluate(() => window.adsbMap.selected());
     if (sel === target.icao) clicked = target.icao;
   }
-  check(clicked !== null, "no uncovered marker with a callsign could be clicked");
+  check(clicked !== null, "no aircraft with a callsign could be clicked");
   if (clicked) {
     // The panel is redrawn at most every 250 ms: give it one turn.
     await sleep(300);
@@ -198,10 +217,12 @@ try {
     check(fields === Object.keys(one).length, `the panel lists ${fields} fields, the API ${Object.keys(one).length}`);
     const bars = await page.$$eval("#panel-body .prob", (rows) => rows.length);
     check(bars === 5, `${bars} mode probability bars`);
+    const row = await page.$$eval("#list-rows tr.selected", (rows) => rows.map((r) => r.dataset.icao));
+    check(row.length <= 1 && (row.length === 0 || row[0] === clicked), `list rows selected: ${row}`);
   }
 
   // Retired aircraft leave the map: once some of those first shown are retired (a minute of
-  // feed time without a message), the markers are still exactly the tracks listed.
+  // feed time without a message), the map still shows exactly the tracks listed.
   let gone = [];
   await until(60000, async () => {
     const now = new Set((await api("api/v1/tracks")).tracks.map((t) => t.icao));
@@ -212,8 +233,10 @@ try {
   check(gone.length >= 3, `only ${gone.length} of the first aircraft retired in 60 s`);
   const later = await agreeWithApi(20000);
   result.later = { markers: later.markers, tracks: later.tracks, same: later.same };
-  check(later.same, `after retirements, markers and /api/v1/tracks differ: ${JSON.stringify({ ...later, icaos: undefined })}`);
+  check(later.same, `after retirements, the map and /api/v1/tracks differ: ${JSON.stringify({ ...later, icaos: undefined })}`);
   check(!gone.some((i) => later.icaos.includes(i)), "a retired aircraft is still on the map");
+  result.events = await page.evaluate(() => window.adsbMap.events());
+  check(result.events.retire > 0, "no retire event arrived");
 
   await sleep(Number(process.env.MAP_SCREENSHOT_WAIT_S ?? 0.5) * 1000);
   await page.screenshot({ path: screenshot });

@@ -3,12 +3,18 @@
 // embedded world outline. No polling: one EventSource, reconnected by the browser (and by us
 // when the browser gives up), and one history request per aircraft when it first appears.
 //
-// Responsiveness with 1,000 aircraft: events only record the newest state per aircraft; the
-// map, the panel and the list are updated once per animation frame (the list at most every
-// LIST_REFRESH_MS); vectors (trails, ellipses, predictions) are drawn on Leaflet's canvas
-// renderer, the static layers (land, range rings) on a canvas of their own.
+// Responsiveness with 1,000 aircraft (2,000 events a second):
+// - events only record the newest state per aircraft; everything is drawn once per
+//   animation frame;
+// - the aircraft (icons and labels) are one canvas, redrawn whole when something moved:
+//   1,000 DOM markers cost far more in style, layout and compositing than drawing them;
+// - trails, ellipses and predictions are Leaflet vectors on its canvas renderer, refreshed
+//   within a time budget per frame (the oldest first), only in and near the view, ellipses
+//   only when they would be larger than a pixel, trails when they gain a point;
+// - the aircraft list draws only the rows in sight; the land and range rings have a canvas
+//   of their own that never redraws for aircraft.
 
-import { ellipseLatLngs, offsetLatLon } from "./geo.js";
+import { covarianceEllipse, ellipseLatLngs, offsetLatLon } from "./geo.js";
 
 const L = window.L;
 const topojson = window.topojson;
@@ -29,24 +35,35 @@ const colourOf = (mode) => COLOUR[mode] ?? "#6b7280";
 const SIGMA_K = 2;
 /** Vertices of an uncertainty ellipse. */
 const ELLIPSE_VERTICES = 36;
+/** An ellipse is drawn when its major semi-axis spans at least this many pixels. */
+const ELLIPSE_MIN_PX = 1.5;
 /** Points kept in a trail. */
 const TRAIL_MAX_POINTS = 600;
 /** A trail point at most every this much feed time, s. */
 const TRAIL_STEP_S = 1;
 /** History requests in flight at once (a thousand aircraft appear at once on connect). */
 const HISTORY_CONCURRENCY = 4;
-/** The aircraft list is redrawn at most this often, ms. */
+/** Time per frame given to refreshing vectors, ms; the rest waits for the next frame. */
+const VECTOR_BUDGET_MS = 6;
+/** The aircraft list is sorted and counted at most this often, ms. */
 const LIST_REFRESH_MS = 500;
+/** Height of a row of the list, px (map.css: #list td; measured after each drawing). */
+let rowH = 20;
+let rowMeasured = false;
+/** Height of the list's header row, px (measured once). */
+let headH = 0;
 /** The side panel is redrawn at most this often, ms. */
 const PANEL_REFRESH_MS = 250;
-/** Rows the list shows at most (the count above it says how many match). */
-const LIST_MAX_ROWS = 400;
+/** A click selects the aircraft whose icon centre is within this, px. */
+const HIT_PX = 12;
 /** Reconnection delays when the browser gives up on the stream, ms. */
 const RECONNECT_MIN_MS = 1000;
 const RECONNECT_MAX_MS = 30000;
 
 const FT_PER_M = 1 / 0.3048;
 const KT_PER_MPS = 3600 / 1852;
+/** Equatorial circumference of Leaflet's sphere, m (metres per pixel at a zoom). */
+const EARTH_CIRCUMFERENCE_M = 40075016.686;
 
 const $ = (id) => document.getElementById(id);
 const esc = (s) =>
@@ -54,13 +71,27 @@ const esc = (s) =>
 const fin = (x) => typeof x === "number" && Number.isFinite(x);
 const fmt = (x, digits) => (fin(x) ? x.toFixed(digits) : "-");
 
+/** icao -> Aircraft on the page. */
+const aircraft = new Map();
+/** Newest state per aircraft, not yet drawn. */
+const pending = new Map();
+/** Aircraft retired, not yet removed. */
+const retired = new Set();
+/** Aircraft whose vectors wait for a refresh, oldest first. */
+const vectorQueue = new Set();
+let selected = null;
+/** The canvas of the aircraft (AircraftCanvas, made once the map has its layers). */
+let aircraftCanvas = null;
+
 // ---------------------------------------------------------------------------------------
 // The map and its layers.
 
-const map = L.map("map", { preferCanvas: true, worldCopyJump: true, minZoom: 2, zoomControl: true });
+const map = L.map("map", { preferCanvas: true, worldCopyJump: true, minZoom: 2, zoomSnap: 0.5, zoomControl: true });
 map.createPane("land").style.zIndex = 250;
-const staticRenderer = L.canvas({ pane: "land", padding: 0.5 });
-const renderer = L.canvas({ padding: 0.5 });
+map.createPane("aircraft").style.zIndex = 650;
+map.getPane("aircraft").style.pointerEvents = "none";
+const staticRenderer = L.canvas({ pane: "land", padding: 0.2 });
+const renderer = L.canvas({ padding: 0.1 });
 
 const land = L.layerGroup();
 const trails = L.layerGroup().addTo(map);
@@ -72,7 +103,6 @@ const predictionCircles = L.layerGroup();
 const selectedCircles = L.layerGroup().addTo(map);
 const rings = L.layerGroup().addTo(map);
 const labels = L.layerGroup().addTo(map);
-const aircraftLayer = L.layerGroup().addTo(map);
 
 fetch("assets/vendor/world-atlas/land-110m.json")
   .then((r) => r.json())
@@ -107,9 +137,6 @@ L.control
     Labels: labels,
   })
   .addTo(map);
-map.on("overlayadd overlayremove", (e) => {
-  if (e.layer === labels) map.getContainer().classList.toggle("hide-labels", e.type === "overlayremove");
-});
 
 const legend = L.control({ position: "bottomright" });
 legend.onAdd = () => {
@@ -118,7 +145,7 @@ legend.onAdd = () => {
   div.innerHTML =
     MODES.map(([m, c, what]) => `<div class="row"><span class="swatch" style="background:${c}"></span><b>${m}</b> ${what}</div>`).join("") +
     `<div class="note">Shaded: ${SIGMA_K}\u03c3 position ellipse. Dashed: predicted path at ${esc(horizons)}; ` +
-    `circles: its ${SIGMA_K}\u03c3 (selected aircraft; all from the layer menu). Red glow: diverging.</div>`;
+    `circles: its ${SIGMA_K}\u03c3 (selected aircraft; all from the layer menu). Red outline: diverging.</div>`;
   L.DomEvent.disableClickPropagation(div);
   return div;
 };
@@ -131,11 +158,10 @@ let fitDue = false;
 let moving = false;
 map.on("movestart zoomstart", () => (moving = true));
 map.on("moveend zoomend", () => (moving = false));
+
 if (SETTINGS.receiver && fin(SETTINGS.receiver.lat_deg) && fin(SETTINGS.receiver.lon_deg)) {
   const { lat_deg: lat, lon_deg: lon } = SETTINGS.receiver;
-  L.circleMarker([lat, lon], { renderer: staticRenderer, radius: 4, color: "#111", weight: 2, fillColor: "#fff", fillOpacity: 1 })
-    .bindTooltip("receiver")
-    .addTo(rings);
+  L.circleMarker([lat, lon], { renderer: staticRenderer, radius: 4, color: "#111", weight: 2, fillColor: "#fff", fillOpacity: 1, interactive: false }).addTo(rings);
   let outer = 0;
   for (const km of SETTINGS.range_rings_km ?? []) {
     outer = Math.max(outer, km);
@@ -154,17 +180,6 @@ if (SETTINGS.receiver && fin(SETTINGS.receiver.lat_deg) && fin(SETTINGS.receiver
 // ---------------------------------------------------------------------------------------
 // Aircraft.
 
-/** Plane silhouette pointing north, 20x20. */
-const PLANE_SVG =
-  '<svg viewBox="-10 -10 20 20" width="20" height="20"><path d="M0,-9 L1.3,-3 L8.5,1.2 L8.5,2.8 L1.3,0.9 L0.9,5.6 L3.2,7.4 L3.2,8.6 L0,7.8 L-3.2,8.6 L-3.2,7.4 L-0.9,5.6 L-1.3,0.9 L-8.5,2.8 L-8.5,1.2 L-1.3,-3 Z"/></svg><div class="ac-label"></div>';
-
-/** icao -> Aircraft on the page. */
-const aircraft = new Map();
-/** Newest state per aircraft, not yet drawn. */
-const pending = new Map();
-/** Aircraft retired, not yet removed. */
-const retired = new Set();
-let selected = null;
 
 class Aircraft {
   constructor(t) {
@@ -172,68 +187,21 @@ class Aircraft {
     this.track = t;
     this.trail = [];
     this.trailT = [];
+    this.trailChanged = false;
     this.shown = false;
-    this.labelText = "";
-    this.classes = "";
-    this.angle = null;
     this.mode = null;
-    this.marker = L.marker([t.lat, t.lon], {
-      icon: L.divIcon({ className: "ac-marker", html: PLANE_SVG, iconSize: [20, 20], iconAnchor: [10, 10] }),
-      keyboard: false,
-      title: t.icao,
-    });
-    this.marker.on("click", () => select(this.icao, false));
-    this.marker.on("add", () => {
-      this.labelText = "";
-      this.classes = "";
-      this.angle = null;
-      this.styleMarker();
-    });
     this.trailLine = L.polyline([], { renderer, weight: 1.5, opacity: 0.7, interactive: false });
     this.ellipse = L.polygon([], { renderer, weight: 1, opacity: 0.8, fillOpacity: 0.18, interactive: false });
     this.predLine = L.polyline([], { renderer, weight: 1.2, opacity: 0.8, dashArray: "4 4", interactive: false });
     this.predCircles = [];
   }
 
-  /** The marker's element's rotation, colour, classes and label, touched only when changed. */
-  styleMarker() {
-    const el = this.marker.getElement();
-    if (!el) return;
-    const t = this.track;
-    el.dataset.icao = this.icao;
-    const classes = `${t.on_ground ? " ground" : ""}${t.diverging ? " diverging" : ""}${this.icao === selected ? " selected" : ""}`;
-    if (classes !== this.classes) {
-      el.className = el.className.replace(/ (ground|diverging|selected)/g, "") + classes;
-      this.classes = classes;
-    }
-    const angle = fin(t.track_deg) ? Math.round(t.track_deg) : 0;
-    if (angle !== this.angle) {
-      el.firstChild.style.transform = `rotate(${angle}deg)`;
-      this.angle = angle;
-    }
-    el.style.color = colourOf(t.mode);
-    const text = labelOf(t);
-    if (text !== this.labelText) {
-      el.lastChild.textContent = text;
-      this.labelText = text;
-    }
-  }
-
-  /** Draws state `t`. */
+  /** Takes state `t`; its vectors are refreshed later, within the frame's budget. */
   update(t) {
     this.track = t;
-    this.marker.setLatLng([t.lat, t.lon]);
-    this.styleMarker();
-    if (t.mode !== this.mode) {
-      const c = colourOf(t.mode);
-      for (const v of [this.trailLine, this.ellipse, this.predLine, ...this.predCircles]) v.setStyle({ color: c });
-      this.mode = t.mode;
-    }
     this.extendTrail(t.t, t.lat, t.lon);
-    const e = ellipseLatLngs(t.lat, t.lon, t.pos_cov_enu_m2, SIGMA_K, ELLIPSE_VERTICES);
-    if (e) this.ellipse.setLatLngs(e);
-    this.drawPredictions(t);
     this.applyFilter();
+    vectorQueue.add(this);
   }
 
   extendTrail(t, lat, lon) {
@@ -245,8 +213,8 @@ class Aircraft {
         this.trail.shift();
         this.trailT.shift();
       }
+      this.trailChanged = true;
     }
-    this.trailLine.setLatLngs([...this.trail, [lat, lon]]);
   }
 
   /** History points (oldest first) before the first point heard live. */
@@ -256,12 +224,40 @@ class Aircraft {
     const keep = older.slice(Math.max(0, older.length - (TRAIL_MAX_POINTS - this.trail.length)));
     this.trail = keep.map((p) => [p.lat, p.lon]).concat(this.trail);
     this.trailT = keep.map((p) => p.t).concat(this.trailT);
-    this.trailLine.setLatLngs([...this.trail, [this.track.lat, this.track.lon]]);
+    this.trailChanged = true;
+    vectorQueue.add(this);
+  }
+
+  /** Brings the trail, ellipse and predictions up to date with the state (`view`: the
+   * padded bounds of the view and metres per pixel there). */
+  drawVectors(view) {
+    const t = this.track;
+    if (!t || !this.shown) return;
+    if (t.mode !== this.mode) {
+      const c = colourOf(t.mode);
+      for (const v of [this.trailLine, this.ellipse, this.predLine, ...this.predCircles]) v.setStyle({ color: c });
+      this.mode = t.mode;
+    }
+    if (this.trailChanged && map.hasLayer(trails)) {
+      this.trailLine.setLatLngs(this.trail);
+      this.trailChanged = false;
+    }
+    if (map.hasLayer(ellipses)) {
+      const e = covarianceEllipse(t.pos_cov_enu_m2, SIGMA_K);
+      const mPerPx = view.metresPerPixel * Math.cos((t.lat * Math.PI) / 180);
+      const big = e && e.major_m >= ELLIPSE_MIN_PX * mPerPx;
+      const pts = big ? ellipseLatLngs(t.lat, t.lon, t.pos_cov_enu_m2, SIGMA_K, ELLIPSE_VERTICES) : null;
+      if (pts) this.ellipse.setLatLngs(pts);
+      else if (this.ellipse.getLatLngs().flat().length) this.ellipse.setLatLngs([]);
+    }
+    if (map.hasLayer(predictions) || this.icao === selected) this.drawPredictions(t);
   }
 
   drawPredictions(t) {
     const preds = Array.isArray(t.predictions) ? t.predictions.filter((p) => fin(p.lat) && fin(p.lon)) : [];
     this.predLine.setLatLngs([[t.lat, t.lon], ...preds.map((p) => [p.lat, p.lon])]);
+    const circles = this.icao === selected || map.hasLayer(predictionCircles);
+    if (!circles) return;
     while (this.predCircles.length < preds.length) {
       const c = L.circle([t.lat, t.lon], { renderer, radius: 1, weight: 1, opacity: 0.7, fillOpacity: 0.06, color: colourOf(t.mode), interactive: false });
       this.predCircles.push(c);
@@ -285,7 +281,6 @@ class Aircraft {
     if (show === this.shown) return;
     this.shown = show;
     const pairs = [
-      [aircraftLayer, this.marker],
       [trails, this.trailLine],
       [ellipses, this.ellipse],
       [predictions, this.predLine],
@@ -295,12 +290,16 @@ class Aircraft {
       if (show) group.addLayer(layer);
       else group.removeLayer(layer);
     }
+    if (show) {
+      this.trailChanged = true;
+      vectorQueue.add(this);
+    }
   }
 
   remove() {
     this.shown = false;
     this.track = null;
-    aircraftLayer.removeLayer(this.marker);
+    vectorQueue.delete(this);
     trails.removeLayer(this.trailLine);
     ellipses.removeLayer(this.ellipse);
     predictions.removeLayer(this.predLine);
@@ -315,12 +314,167 @@ function altFt(t) {
   return fin(t.alt_m) ? t.alt_m * FT_PER_M : null;
 }
 
-function labelOf(t) {
+function labelLines(t) {
   const name = t.callsign || t.icao;
-  if (t.on_ground) return `${name}\nGND`;
+  if (t.on_ground) return [name, "GND"];
   const ft = altFt(t);
   const arrow = t.vertical === "climb" ? " \u2191" : t.vertical === "descent" ? " \u2193" : "";
-  return `${name}\n${ft === null ? "-" : Math.round(ft / 100) * 100} ft${arrow}`;
+  return [name, `${ft === null ? "-" : Math.round(ft / 100) * 100} ft${arrow}`];
+}
+
+/** Plane silhouette pointing north, centred on 0,0 (20 px across). */
+const PLANE = new Path2D(
+  "M0,-9 L1.3,-3 L8.5,1.2 L8.5,2.8 L1.3,0.9 L0.9,5.6 L3.2,7.4 L3.2,8.6 L0,7.8 L-3.2,8.6 L-3.2,7.4 L-0.9,5.6 L-1.3,0.9 L-8.5,2.8 L-8.5,1.2 L-1.3,-3 Z",
+);
+
+/**
+ * Every shown aircraft on one canvas over the map: icon rotated by the track, coloured by
+ * mode (red outline while diverging, a ring when selected), callsign and altitude label
+ * (labels that would overlap one already drawn are left out). Redrawn whole, at most once a
+ * frame, when an aircraft changed or the view moved; hidden during zoom animations.
+ */
+const AircraftCanvas = L.Layer.extend({
+  onAdd(m) {
+    this._canvas = L.DomUtil.create("canvas", "aircraft-canvas leaflet-zoom-hide", m.getPane("aircraft"));
+    this._ctx = this._canvas.getContext("2d");
+    /** icao -> [x, y] in the map container, as last drawn. */
+    this.drawn = new Map();
+    this._queued = false;
+    m.on("move moveend zoomend viewreset resize", this.redraw, this);
+    this.redraw();
+  },
+  onRemove(m) {
+    m.off("move moveend zoomend viewreset resize", this.redraw, this);
+    L.DomUtil.remove(this._canvas);
+  },
+  redraw() {
+    if (this._queued || !this._map) return;
+    this._queued = true;
+    requestAnimationFrame(() => {
+      this._queued = false;
+      this._draw();
+    });
+  },
+  _draw() {
+    const m = this._map;
+    if (!m) return;
+    const size = m.getSize();
+    const dpr = window.devicePixelRatio || 1;
+    const c = this._canvas;
+    if (c.width !== Math.round(size.x * dpr) || c.height !== Math.round(size.y * dpr)) {
+      c.width = Math.round(size.x * dpr);
+      c.height = Math.round(size.y * dpr);
+      c.style.width = `${size.x}px`;
+      c.style.height = `${size.y}px`;
+    }
+    L.DomUtil.setPosition(c, m.containerPointToLayerPoint([0, 0]));
+    const ctx = this._ctx;
+    ctx.setTransform(dpr, 0, 0, dpr, 0, 0);
+    ctx.clearRect(0, 0, size.x, size.y);
+    this.drawn.clear();
+    const order = [];
+    for (const a of aircraft.values()) {
+      if (!a.shown) continue;
+      const t = a.track;
+      const p = m.latLngToContainerPoint([t.lat, t.lon]);
+      if (p.x < -20 || p.y < -20 || p.x > size.x + 20 || p.y > size.y + 20) continue;
+      this.drawn.set(a.icao, [p.x, p.y]);
+      order.push([a, p]);
+    }
+    ctx.lineJoin = "round";
+    for (const [a, p] of order) {
+      const t = a.track;
+      ctx.setTransform(dpr, 0, 0, dpr, dpr * p.x, dpr * p.y);
+      if (a.icao === selected) {
+        ctx.beginPath();
+        ctx.arc(0, 0, 13, 0, 2 * Math.PI);
+        ctx.lineWidth = 2.5;
+        ctx.strokeStyle = "#111";
+        ctx.stroke();
+      }
+      ctx.rotate(((fin(t.track_deg) ? t.track_deg : 0) * Math.PI) / 180);
+      if (t.diverging) {
+        ctx.lineWidth = 4;
+        ctx.strokeStyle = "#e0001b";
+        ctx.stroke(PLANE);
+      }
+      ctx.globalAlpha = t.on_ground ? 0.6 : 1;
+      ctx.fillStyle = colourOf(t.mode);
+      ctx.fill(PLANE);
+      ctx.lineWidth = 1.2;
+      ctx.strokeStyle = "#fff";
+      ctx.stroke(PLANE);
+      ctx.globalAlpha = 1;
+    }
+    if (m.hasLayer(labels)) this._labels(ctx, dpr, order, size);
+    ctx.setTransform(1, 0, 0, 1, 0, 0);
+  },
+  _labels(ctx, dpr, order, size) {
+    ctx.setTransform(dpr, 0, 0, dpr, 0, 0);
+    ctx.font = "10.5px system-ui, sans-serif";
+    ctx.textBaseline = "top";
+    ctx.lineWidth = 3;
+    ctx.strokeStyle = "rgba(255,255,255,0.9)";
+    ctx.fillStyle = "#102";
+    // Occupied cells of a coarse grid: a label over one already drawn is left out.
+    const CELL = 8;
+    const taken = new Set();
+    const sel = order.findIndex(([a]) => a.icao === selected);
+    if (sel > 0) order.unshift(order.splice(sel, 1)[0]);
+    for (const [a, p] of order) {
+      const [l1, l2] = labelLines(a.track);
+      const x = p.x + 11;
+      const y = p.y - 10;
+      const w = 6 * Math.max(l1.length, l2.length);
+      const cells = [];
+      let free = true;
+      for (let cx = Math.floor(x / CELL); cx <= Math.floor((x + w) / CELL) && free; cx++) {
+        for (let cy = Math.floor(y / CELL); cy <= Math.floor((y + 24) / CELL); cy++) {
+          const k = cx * 100003 + cy;
+          if (taken.has(k)) {
+            free = false;
+            break;
+          }
+          cells.push(k);
+        }
+      }
+      if (!free || x > size.x) continue;
+      for (const k of cells) taken.add(k);
+      ctx.strokeText(l1, x, y);
+      ctx.fillText(l1, x, y);
+      ctx.strokeText(l2, x, y + 12);
+      ctx.fillText(l2, x, y + 12);
+    }
+  },
+  /** The drawn aircraft nearest to a container point, within HIT_PX. */
+  hit(point) {
+    let best = null;
+    let bestD = HIT_PX;
+    for (const [icao, [x, y]] of this.drawn) {
+      const d = Math.hypot(x - point.x, y - point.y);
+      if (d <= bestD) {
+        best = icao;
+        bestD = d;
+      }
+    }
+    return best;
+  },
+});
+aircraftCanvas = new AircraftCanvas().addTo(map);
+
+map.on("click", (e) => {
+  const icao = aircraftCanvas.hit(e.containerPoint);
+  if (icao) select(icao, false);
+});
+map.on("mousemove", (e) => {
+  map.getContainer().style.cursor = aircraftCanvas.hit(e.containerPoint) ? "pointer" : "";
+});
+function queueAllVectors() {
+  for (const a of aircraft.values()) {
+    a.trailChanged = true;
+    vectorQueue.add(a);
+  }
+  queueFrame();
 }
 
 // History: one request per new aircraft, a few at a time.
@@ -339,7 +493,10 @@ function pumpHistory() {
       .then((r) => (r.ok ? r.json() : null))
       .then((h) => {
         const a = aircraft.get(icao);
-        if (a && a.track && h && Array.isArray(h.points)) a.prependHistory(h.points);
+        if (a && a.track && h && Array.isArray(h.points)) {
+          a.prependHistory(h.points);
+          queueFrame();
+        }
       })
       .catch(() => {})
       .finally(() => {
@@ -397,7 +554,9 @@ function onFilterChange() {
   filters.altMin = num("f-alt-min");
   filters.altMax = num("f-alt-max");
   for (const a of aircraft.values()) a.applyFilter();
+  aircraftCanvas.redraw();
   renderList();
+  queueFrame();
 }
 for (const id of ["f-search", "f-alt-min", "f-alt-max"]) $(id).addEventListener("input", onFilterChange);
 $("f-modes").addEventListener("change", onFilterChange);
@@ -414,49 +573,75 @@ $("list-rows").addEventListener("click", (e) => {
   if (icao) select(icao, true);
 });
 
+/** The list's rows, filtered and sorted; only those in sight are in the DOM. */
+let listTracks = [];
 let listRendered = 0;
 let listDirty = true;
 function renderList() {
   listRendered = performance.now();
   listDirty = false;
-  const shown = [...aircraft.values()].map((a) => a.track).filter(matches);
+  listTracks = [...aircraft.values()].map((a) => a.track).filter(matches);
   const key = SORT[sortKey];
-  shown.sort((a, b) => {
-    const x = key(a);
-    const y = key(b);
-    return (x < y ? -1 : x > y ? 1 : 0) * sortDir || (a.icao < b.icao ? -1 : 1);
-  });
+  const keyed = listTracks.map((t) => [key(t), t]);
+  keyed.sort(([x, a], [y, b]) => (x < y ? -1 : x > y ? 1 : 0) * sortDir || (a.icao < b.icao ? -1 : 1));
+  listTracks = keyed.map(([, t]) => t);
   for (const th of document.querySelectorAll("#list th")) {
     th.classList.toggle("sorted", th.dataset.key === sortKey);
     th.classList.toggle("asc", sortDir > 0);
     th.classList.toggle("desc", sortDir < 0);
   }
-  $("list-count").textContent =
-    `${shown.length} of ${aircraft.size} aircraft` + (shown.length > LIST_MAX_ROWS ? ` (first ${LIST_MAX_ROWS} listed)` : "");
-  $("list-rows").innerHTML = shown
-    .slice(0, LIST_MAX_ROWS)
-    .map((t) => {
-      const ft = altFt(t);
-      return `<tr data-icao="${esc(t.icao)}"${t.icao === selected ? ' class="selected"' : ""}>` +
-        `<td>${esc(t.callsign ?? "")}</td><td>${esc(t.icao)}</td>` +
-        `<td><span class="badge" style="background:${colourOf(t.mode)}">${esc(t.mode)}</span></td>` +
-        `<td class="num">${t.on_ground ? "GND" : ft === null ? "-" : Math.round(ft)}</td>` +
-        `<td class="num">${fmt(t.ground_speed_mps * KT_PER_MPS, 0)}</td>` +
-        `<td class="num">${fmt(t.vertical_rate_mps * FT_PER_M * 60, 0)}</td>` +
-        `<td class="num">${fmt(t.pos_sigma_m, 0)}</td><td class="num">${t.messages ?? ""}</td></tr>`;
-    })
-    .join("");
+  $("list-count").textContent = `${listTracks.length} of ${aircraft.size} aircraft`;
+  renderRows();
 }
 
-/** Marks `a` selected or not: its marker, trail and prediction circles. */
+let rowsQueued = false;
+$("list-scroll").addEventListener("scroll", () => {
+  if (rowsQueued) return;
+  rowsQueued = true;
+  requestAnimationFrame(() => {
+    rowsQueued = false;
+    renderRows();
+  });
+});
+
+/** The rows in sight, between two spacers of the height of those that are not. */
+function renderRows() {
+  const scroller = $("list-scroll");
+  // Heights measured once (reading them forces a layout).
+  headH ||= document.querySelector("#list thead").offsetHeight;
+  const first = Math.max(0, Math.floor((scroller.scrollTop - headH) / rowH) - 5);
+  const count = Math.ceil(scroller.clientHeight / rowH) + 10;
+  const last = Math.min(listTracks.length, first + count);
+  const rows = listTracks.slice(first, last).map((t) => {
+    const ft = altFt(t);
+    return `<tr data-icao="${esc(t.icao)}"${t.icao === selected ? ' class="selected"' : ""}>` +
+      `<td>${esc(t.callsign ?? "")}</td><td>${esc(t.icao)}</td>` +
+      `<td><span class="badge" style="background:${colourOf(t.mode)}">${esc(t.mode)}</span></td>` +
+      `<td class="num">${t.on_ground ? "GND" : ft === null ? "-" : Math.round(ft)}</td>` +
+      `<td class="num">${fmt(t.ground_speed_mps * KT_PER_MPS, 0)}</td>` +
+      `<td class="num">${fmt(t.vertical_rate_mps * FT_PER_M * 60, 0)}</td>` +
+      `<td class="num">${fmt(t.pos_sigma_m, 0)}</td><td class="num">${t.messages ?? ""}</td></tr>`;
+  });
+  const spacer = (n) => (n > 0 ? `<tr class="spacer" style="height:${n * rowH}px"><td colspan="8"></td></tr>` : "");
+  $("list-rows").innerHTML = spacer(first) + rows.join("") + spacer(listTracks.length - last);
+  if (!rowMeasured) {
+    const row = $("list-rows").querySelector("tr:not(.spacer)");
+    if (row && row.offsetHeight > 0) {
+      rowH = row.offsetHeight;
+      rowMeasured = true;
+    }
+  }
+}
+
+/** Marks `a` selected or not: its trail and prediction circles (the canvas draws the ring). */
 function highlight(a, on) {
   if (!a) return;
-  a.styleMarker();
   a.trailLine.setStyle({ weight: on ? 3 : 1.5 });
   for (const c of a.predCircles) {
     (on ? predictionCircles : selectedCircles).removeLayer(c);
     if (a.shown) (on ? selectedCircles : predictionCircles).addLayer(c);
   }
+  vectorQueue.add(a);
 }
 
 function select(icao, pan) {
@@ -469,14 +654,18 @@ function select(icao, pan) {
   if (pan) map.panTo([a.track.lat, a.track.lon]);
   $("panel").hidden = false;
   renderPanel();
-  renderList();
+  renderRows();
+  aircraftCanvas.redraw();
+  queueFrame();
 }
 $("panel-close").addEventListener("click", () => {
   const prev = aircraft.get(selected);
   selected = null;
   highlight(prev, false);
   $("panel").hidden = true;
-  renderList();
+  renderRows();
+  aircraftCanvas.redraw();
+  queueFrame();
 });
 
 /** One value of the "every field" table. */
@@ -579,12 +768,14 @@ function queueFrame() {
 
 function frame() {
   frameQueued = false;
+  const start = performance.now();
+  let changed = false;
   for (const icao of retired) {
     const a = aircraft.get(icao);
     if (a) {
       a.remove();
       aircraft.delete(icao);
-      listDirty = true;
+      changed = true;
       if (icao === selected) panelDirty = true;
     }
   }
@@ -598,16 +789,31 @@ function frame() {
     }
     a.update(t);
     if (icao === selected) panelDirty = true;
+    changed = true;
   }
-  if (pending.size) listDirty = true;
   pending.clear();
   if (fitDue) fitOnce();
+  if (changed) {
+    listDirty = true;
+    aircraftCanvas.redraw();
+  }
+  // Vectors, oldest request first, for as long as the budget lasts; those far out of view
+  // wait for the view to come to them (moveend queues every aircraft again).
+  if (vectorQueue.size && !moving) {
+    const bounds = map.getBounds().pad(0.5);
+    const view = { metresPerPixel: EARTH_CIRCUMFERENCE_M / 2 ** (map.getZoom() + 8) };
+    for (const a of vectorQueue) {
+      if (performance.now() - start > VECTOR_BUDGET_MS) break;
+      vectorQueue.delete(a);
+      if (a.track && (a.icao === selected || bounds.contains([a.track.lat, a.track.lon]))) a.drawVectors(view);
+    }
+  }
   const now = performance.now();
   if (panelDirty && now - panelRendered >= PANEL_REFRESH_MS) renderPanel();
   if (listDirty && now - listRendered >= LIST_REFRESH_MS) renderList();
   $("c-aircraft").textContent = String(aircraft.size);
-  // Throttled work left: come back next frame.
-  if (panelDirty || listDirty) queueFrame();
+  // Work left (vectors, throttled list or panel): come back next frame.
+  if (panelDirty || listDirty || (vectorQueue.size && !moving)) queueFrame();
 }
 
 /** Fits the view to the aircraft once, when the first state is in (until then the view
@@ -629,6 +835,8 @@ const heardIn = new Map();
 let statsSinceOpen = 0;
 let reconnectMs = RECONNECT_MIN_MS;
 let source = null;
+/** Events received, by type (for the curious and the tests). */
+const counts = { track: 0, retire: 0, stats: 0 };
 
 function setStream(state) {
   const el = $("c-stream");
@@ -653,6 +861,7 @@ function connect() {
     setStream("live");
   });
   source.addEventListener("track", (ev) => {
+    counts.track++;
     const t = parse(ev);
     if (!t || typeof t.icao !== "string" || !fin(t.lat) || !fin(t.lon)) return;
     pending.set(t.icao, t);
@@ -661,6 +870,7 @@ function connect() {
     queueFrame();
   });
   source.addEventListener("retire", (ev) => {
+    counts.retire++;
     const r = parse(ev);
     if (!r || typeof r.icao !== "string") return;
     pending.delete(r.icao);
@@ -669,6 +879,7 @@ function connect() {
     queueFrame();
   });
   source.addEventListener("stats", (ev) => {
+    counts.stats++;
     const s = parse(ev);
     if (!s) return;
     stats = s;
@@ -703,19 +914,28 @@ function connect() {
   });
 }
 connect();
+// (Registered last: the map fires these for its first layers when it gets its view.)
+map.on("overlayadd overlayremove", (e) => {
+  if (e.layer === labels) aircraftCanvas.redraw();
+  // Vectors of layers that were off were not refreshed: bring them up to date.
+  if (e.type === "overlayadd") queueAllVectors();
+});
+map.on("zoomend moveend", queueAllVectors);
 
 // For tests and the curious: the page's state, read-only.
 window.adsbMap = {
   map,
-  count: () => aircraftLayer.getLayers().length,
-  icaos: () => [...aircraft.keys()],
+  /** The aircraft on the map (those the filters let through), in or out of view. */
+  icaos: () => [...aircraft.values()].filter((a) => a.shown).map((a) => a.icao),
   track: (icao) => aircraft.get(icao)?.track ?? null,
-  markerLatLng: (icao) => {
-    const ll = aircraft.get(icao)?.marker.getLatLng();
-    return ll ? [ll.lat, ll.lng] : null;
-  },
+  /** icao -> [x, y] of each icon in the last drawing, in the map container's pixels. */
+  drawn: () => Object.fromEntries(aircraftCanvas.drawn),
   selected: () => selected,
   /** Fitted to the aircraft and not moving: what a test waits for before it measures. */
   settled: () => fitted && !moving,
-  stream: () => source?.readyState,
+  /** Stream connections opened so far (1 until a reconnection). */
+  connections: () => epoch,
+  events: () => ({ ...counts }),
+  /** Vector refreshes waiting. */
+  backlog: () => vectorQueue.size,
 };

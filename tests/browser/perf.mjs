@@ -5,6 +5,7 @@
 // Waits for MIN_AIRCRAFT markers (default 900), then for SECONDS (default 20) measures in
 // the page: frames drawn, the gaps between them (p50, p99, max), long tasks (> 50 ms, the
 // main thread busy), events received, and the JS heap. Prints one JSON line.
+// PERF_SETUP=script runs in the page first (e.g. to turn layers off and compare).
 import { chromium } from "playwright-core";
 
 const [url, minArg, secArg] = process.argv.slice(2);
@@ -22,6 +23,8 @@ try {
   await page.waitForFunction((n) => window.adsbMap && window.adsbMap.icaos().length >= n, minAircraft, { timeout: 120000, polling: 500 });
   const loadS = (Date.now() - t0) / 1000;
   await page.waitForFunction(() => window.adsbMap.settled(), null, { timeout: 30000 });
+  // PERF_SETUP: script run in the page before measuring (e.g. turning layers off).
+  if (process.env.PERF_SETUP) await page.evaluate(process.env.PERF_SETUP);
   const r = await page.evaluate(async (ms) => {
     const gaps = [];
     let long = 0;

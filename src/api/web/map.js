@@ -43,8 +43,11 @@ const TRAIL_MAX_POINTS = 600;
 const TRAIL_STEP_S = 1;
 /** History requests in flight at once (a thousand aircraft appear at once on connect). */
 const HISTORY_CONCURRENCY = 4;
-/** Time per frame given to refreshing vectors, ms; the rest waits for the next frame. */
-const VECTOR_BUDGET_MS = 6;
+/** Vectors are refreshed in passes this far apart, ms: each pass makes Leaflet redraw its
+ * whole canvas, whatever the number of vectors changed. */
+const VECTOR_PERIOD_MS = 250;
+/** Time a pass may take, ms; the rest waits for the next pass (oldest first). */
+const VECTOR_BUDGET_MS = 10;
 /** The aircraft list is sorted and counted at most this often, ms. */
 const LIST_REFRESH_MS = 500;
 /** Height of a row of the list, px (map.css: #list td; measured after each drawing). */
@@ -326,12 +329,77 @@ function labelLines(t) {
 const PLANE = new Path2D(
   "M0,-9 L1.3,-3 L8.5,1.2 L8.5,2.8 L1.3,0.9 L0.9,5.6 L3.2,7.4 L3.2,8.6 L0,7.8 L-3.2,8.6 L-3.2,7.4 L-0.9,5.6 L-1.3,0.9 L-8.5,2.8 L-8.5,1.2 L-1.3,-3 Z",
 );
+/** Side of an icon sprite, CSS px. */
+const SPRITE_PX = 28;
+/** Icons are drawn rotated to the nearest this many degrees (one sprite each). */
+const SPRITE_STEP_DEG = 5;
+/** Pre-drawn icons: `colour|angle|diverging|ground|dpr` -> canvas. At most 6 colours x 72
+ * angles x 4 = 1,728 sprites of 28x28 px. Copying a sprite costs a fraction of filling and
+ * stroking the path, which matters 1,000 times a drawing. */
+const sprites = new Map();
+
+function planeSprite(colour, trackDeg, diverging, ground, dpr) {
+  const angle = (Math.round((fin(trackDeg) ? trackDeg : 0) / SPRITE_STEP_DEG) * SPRITE_STEP_DEG) % 360;
+  const key = `${colour}|${angle}|${diverging ? 1 : 0}|${ground ? 1 : 0}|${dpr}`;
+  let c = sprites.get(key);
+  if (c) return c;
+  c = document.createElement("canvas");
+  c.width = c.height = Math.ceil(SPRITE_PX * dpr);
+  const x = c.getContext("2d");
+  x.setTransform(dpr, 0, 0, dpr, c.width / 2, c.height / 2);
+  x.rotate((angle * Math.PI) / 180);
+  x.lineJoin = "round";
+  if (diverging) {
+    x.lineWidth = 4;
+    x.strokeStyle = "#e0001b";
+    x.stroke(PLANE);
+  }
+  x.globalAlpha = ground ? 0.6 : 1;
+  x.fillStyle = colour;
+  x.fill(PLANE);
+  x.lineWidth = 1.2;
+  x.strokeStyle = "#fff";
+  x.stroke(PLANE);
+  sprites.set(key, c);
+  return c;
+}
+
+/** A label's two lines drawn once on a canvas of their own, redrawn when the text changes. */
+function labelSprite(a, dpr) {
+  const [l1, l2] = labelLines(a.track);
+  const text = `${l1}\n${l2}|${dpr}`;
+  if (a.label?.text === text) return a.label;
+  const measure = labelSprite.ctx ?? (labelSprite.ctx = document.createElement("canvas").getContext("2d"));
+  measure.font = LABEL_FONT;
+  const w = Math.ceil(Math.max(measure.measureText(l1).width, measure.measureText(l2).width)) + 6;
+  const h = 26;
+  const c = a.label?.canvas ?? document.createElement("canvas");
+  c.width = Math.ceil(w * dpr);
+  c.height = Math.ceil(h * dpr);
+  const x = c.getContext("2d");
+  x.setTransform(dpr, 0, 0, dpr, 0, 0);
+  x.font = LABEL_FONT;
+  x.textBaseline = "top";
+  x.lineJoin = "round";
+  x.lineWidth = 3;
+  x.strokeStyle = "rgba(255,255,255,0.9)";
+  x.fillStyle = "#102";
+  for (const [line, y] of [[l1, 1], [l2, 13]]) {
+    x.strokeText(line, 2, y);
+    x.fillText(line, 2, y);
+  }
+  a.label = { text, canvas: c, w, h };
+  return a.label;
+}
+const LABEL_FONT = "10.5px system-ui, sans-serif";
 
 /**
  * Every shown aircraft on one canvas over the map: icon rotated by the track, coloured by
  * mode (red outline while diverging, a ring when selected), callsign and altitude label
- * (labels that would overlap one already drawn are left out). Redrawn whole, at most once a
- * frame, when an aircraft changed or the view moved; hidden during zoom animations.
+ * (labels that would overlap one already drawn are left out). Redrawn whole: at once when
+ * the view moves or the user selects or filters, and for new data at most every
+ * aircraft.size / 10 ms (10 times a second with 1,000 aircraft: each moves twice a second at
+ * most, and a pixel in minutes); hidden during zoom animations.
  */
 const AircraftCanvas = L.Layer.extend({
   onAdd(m) {
@@ -340,6 +408,8 @@ const AircraftCanvas = L.Layer.extend({
     /** icao -> [x, y] in the map container, as last drawn. */
     this.drawn = new Map();
     this._queued = false;
+    this._timer = null;
+    this._last = 0;
     m.on("move moveend zoomend viewreset resize", this.redraw, this);
     this.redraw();
   },
@@ -347,11 +417,20 @@ const AircraftCanvas = L.Layer.extend({
     m.off("move moveend zoomend viewreset resize", this.redraw, this);
     L.DomUtil.remove(this._canvas);
   },
-  redraw() {
+  /** Redraws in the next frame; `throttled`: new data only, no sooner than the period. */
+  redraw(throttled) {
     if (this._queued || !this._map) return;
+    const wait = throttled === true ? this._last + Math.min(200, aircraft.size / 10) - performance.now() : 0;
+    if (wait > 0) {
+      if (!this._timer) this._timer = setTimeout(() => ((this._timer = null), this.redraw()), wait);
+      return;
+    }
+    clearTimeout(this._timer);
+    this._timer = null;
     this._queued = true;
     requestAnimationFrame(() => {
       this._queued = false;
+      this._last = performance.now();
       this._draw();
     });
   },
@@ -369,8 +448,8 @@ const AircraftCanvas = L.Layer.extend({
     }
     L.DomUtil.setPosition(c, m.containerPointToLayerPoint([0, 0]));
     const ctx = this._ctx;
-    ctx.setTransform(dpr, 0, 0, dpr, 0, 0);
-    ctx.clearRect(0, 0, size.x, size.y);
+    ctx.setTransform(1, 0, 0, 1, 0, 0);
+    ctx.clearRect(0, 0, c.width, c.height);
     this.drawn.clear();
     const order = [];
     for (const a of aircraft.values()) {
@@ -381,55 +460,40 @@ const AircraftCanvas = L.Layer.extend({
       this.drawn.set(a.icao, [p.x, p.y]);
       order.push([a, p]);
     }
-    ctx.lineJoin = "round";
+    const half = Math.ceil(SPRITE_PX * dpr) / 2;
     for (const [a, p] of order) {
       const t = a.track;
-      ctx.setTransform(dpr, 0, 0, dpr, dpr * p.x, dpr * p.y);
-      if (a.icao === selected) {
-        ctx.beginPath();
-        ctx.arc(0, 0, 13, 0, 2 * Math.PI);
-        ctx.lineWidth = 2.5;
-        ctx.strokeStyle = "#111";
-        ctx.stroke();
-      }
-      ctx.rotate(((fin(t.track_deg) ? t.track_deg : 0) * Math.PI) / 180);
-      if (t.diverging) {
-        ctx.lineWidth = 4;
-        ctx.strokeStyle = "#e0001b";
-        ctx.stroke(PLANE);
-      }
-      ctx.globalAlpha = t.on_ground ? 0.6 : 1;
-      ctx.fillStyle = colourOf(t.mode);
-      ctx.fill(PLANE);
-      ctx.lineWidth = 1.2;
-      ctx.strokeStyle = "#fff";
-      ctx.stroke(PLANE);
-      ctx.globalAlpha = 1;
+      const sprite = planeSprite(colourOf(t.mode), t.track_deg, t.diverging, t.on_ground, dpr);
+      ctx.drawImage(sprite, Math.round(p.x * dpr - half), Math.round(p.y * dpr - half));
+    }
+    const sel = order.findIndex(([a]) => a.icao === selected);
+    if (sel >= 0) {
+      const [, p] = order[sel];
+      ctx.setTransform(dpr, 0, 0, dpr, 0, 0);
+      ctx.beginPath();
+      ctx.arc(p.x, p.y, 13, 0, 2 * Math.PI);
+      ctx.lineWidth = 2.5;
+      ctx.strokeStyle = "#111";
+      ctx.stroke();
+      ctx.setTransform(1, 0, 0, 1, 0, 0);
+      // Its label first: never left out.
+      if (sel > 0) order.unshift(order.splice(sel, 1)[0]);
     }
     if (m.hasLayer(labels)) this._labels(ctx, dpr, order, size);
-    ctx.setTransform(1, 0, 0, 1, 0, 0);
   },
   _labels(ctx, dpr, order, size) {
-    ctx.setTransform(dpr, 0, 0, dpr, 0, 0);
-    ctx.font = "10.5px system-ui, sans-serif";
-    ctx.textBaseline = "top";
-    ctx.lineWidth = 3;
-    ctx.strokeStyle = "rgba(255,255,255,0.9)";
-    ctx.fillStyle = "#102";
     // Occupied cells of a coarse grid: a label over one already drawn is left out.
     const CELL = 8;
     const taken = new Set();
-    const sel = order.findIndex(([a]) => a.icao === selected);
-    if (sel > 0) order.unshift(order.splice(sel, 1)[0]);
     for (const [a, p] of order) {
-      const [l1, l2] = labelLines(a.track);
-      const x = p.x + 11;
-      const y = p.y - 10;
-      const w = 6 * Math.max(l1.length, l2.length);
+      const x = p.x + 10;
+      const y = p.y - 11;
+      if (x > size.x) continue;
+      const label = labelSprite(a, dpr);
       const cells = [];
       let free = true;
-      for (let cx = Math.floor(x / CELL); cx <= Math.floor((x + w) / CELL) && free; cx++) {
-        for (let cy = Math.floor(y / CELL); cy <= Math.floor((y + 24) / CELL); cy++) {
+      for (let cx = Math.floor(x / CELL); cx <= Math.floor((x + label.w) / CELL) && free; cx++) {
+        for (let cy = Math.floor(y / CELL); cy <= Math.floor((y + label.h) / CELL); cy++) {
           const k = cx * 100003 + cy;
           if (taken.has(k)) {
             free = false;
@@ -438,12 +502,9 @@ const AircraftCanvas = L.Layer.extend({
           cells.push(k);
         }
       }
-      if (!free || x > size.x) continue;
+      if (!free) continue;
       for (const k of cells) taken.add(k);
-      ctx.strokeText(l1, x, y);
-      ctx.fillText(l1, x, y);
-      ctx.strokeText(l2, x, y + 12);
-      ctx.fillText(l2, x, y + 12);
+      ctx.drawImage(label.canvas, Math.round(x * dpr), Math.round(y * dpr));
     }
   },
   /** The drawn aircraft nearest to a container point, within HIT_PX. */
@@ -759,6 +820,7 @@ function renderStats() {
 // The frame loop: everything the events changed, drawn once.
 
 let frameQueued = false;
+let lastVectorPass = 0;
 function queueFrame() {
   if (!frameQueued) {
     frameQueued = true;
@@ -795,11 +857,13 @@ function frame() {
   if (fitDue) fitOnce();
   if (changed) {
     listDirty = true;
-    aircraftCanvas.redraw();
+    aircraftCanvas.redraw(true);
   }
-  // Vectors, oldest request first, for as long as the budget lasts; those far out of view
-  // wait for the view to come to them (moveend queues every aircraft again).
-  if (vectorQueue.size && !moving) {
+  // Vectors, a pass every VECTOR_PERIOD_MS, oldest request first, for as long as the budget
+  // lasts; those far out of view wait for the view to come to them (moveend queues every
+  // aircraft again).
+  if (vectorQueue.size && !moving && start - lastVectorPass >= VECTOR_PERIOD_MS) {
+    lastVectorPass = start;
     const bounds = map.getBounds().pad(0.5);
     const view = { metresPerPixel: EARTH_CIRCUMFERENCE_M / 2 ** (map.getZoom() + 8) };
     for (const a of vectorQueue) {
@@ -812,9 +876,19 @@ function frame() {
   if (panelDirty && now - panelRendered >= PANEL_REFRESH_MS) renderPanel();
   if (listDirty && now - listRendered >= LIST_REFRESH_MS) renderList();
   $("c-aircraft").textContent = String(aircraft.size);
-  // Work left (vectors, throttled list or panel): come back next frame.
-  if (panelDirty || listDirty || (vectorQueue.size && !moving)) queueFrame();
+  // Work left (vectors, the throttled list or panel): come back when it is due.
+  const due = [];
+  if (panelDirty) due.push(panelRendered + PANEL_REFRESH_MS);
+  if (listDirty) due.push(listRendered + LIST_REFRESH_MS);
+  if (vectorQueue.size && !moving) due.push(lastVectorPass + VECTOR_PERIOD_MS);
+  if (due.length && !laterTimer) {
+    laterTimer = setTimeout(() => {
+      laterTimer = null;
+      queueFrame();
+    }, Math.max(0, Math.min(...due) - performance.now()));
+  }
 }
+let laterTimer = null;
 
 /** Fits the view to the aircraft once, when the first state is in (until then the view
  * holds the receiver's range rings, or the world). */

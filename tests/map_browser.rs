@@ -1,9 +1,10 @@
 //! Issue 12: the live map at `/`, in a real browser. The daemon replays the LAX recording
 //! (real traffic around Los Angeles) in real time x10; `tests/browser/map.mjs` drives
 //! Debian's chromium (headless, through npm `playwright-core`) over the page with every
-//! request off the daemon blocked, and checks that the markers are the tracks
-//! `/api/v1/tracks` lists (before and after some are retired), that they move as events
-//! arrive, and that clicking one opens its panel with its callsign. `tests/browser/geo.test.mjs` checks the page's geometry.
+//! request off the daemon blocked, and checks that the aircraft drawn are the tracks
+//! `/api/v1/tracks` lists (before and after some are retired, and after a network outage
+//! the page recovers from by itself), that they move as events arrive, and that clicking
+//! one opens its panel with its callsign. `tests/browser/geo.test.mjs` checks the page's geometry.
 //!
 //! Needs `node`, `chromium` (or `CHROMIUM=path`) and `npm ci` in `tests/browser/`. Without
 //! them the tests say why and pass, unless `ADSB_BROWSER_TESTS=required` (as `.ci/run`
@@ -180,12 +181,25 @@ async fn the_map_shows_the_replayed_tracks_in_chromium() {
     // are again exactly the tracks listed.
     assert!(r["retired"].as_u64().unwrap() >= 3, "{r}");
     assert_eq!(r["later"]["same"], true, "{r}");
+    // After a network outage the page reconnected by itself and dropped the aircraft
+    // retired meanwhile, whose `retire` events it never got.
+    assert_eq!(r["reconnected"], true, "{r}");
+    assert_eq!(r["after_outage"]["same"], true, "{r}");
+    assert!(
+        r["after_outage"]["retired_meanwhile"].as_u64().unwrap() >= 1,
+        "{r}"
+    );
     // Trails start from the history endpoint.
     assert!(r["history"]["ok"].as_u64().unwrap() > 0, "{r}");
     assert!(r["history"]["points"].as_u64().unwrap() > 0, "{r}");
     // Markers move: at 10x, an airliner crosses a pixel of the first view every ~0.2 s.
     assert!(r["moved"].as_u64().unwrap() >= 5, "{r}");
-    // The panel of the marker clicked names its callsign.
+    // Every aircraft in view is drawn, and the pixel under the icon clicked is its mode's
+    // colour (map.mjs compares it).
+    assert_eq!(r["undrawn"], 0, "{r}");
+    assert_eq!(r["pixel"][3], 255, "{r}");
+    // The panel of the aircraft clicked names its callsign and lists every field.
+    assert_eq!(r["panel_fields"], r["api_fields"], "{r}");
     assert!(r["callsign"].is_string(), "{r}");
     assert_eq!(r["panel_title"], r["callsign"], "{r}");
     // No request left the daemon; none failed.

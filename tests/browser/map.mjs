@@ -11,6 +11,8 @@
 // - they move on screen as events arrive;
 // - clicking an aircraft opens its panel, titled with the callsign /api/v1/tracks/{icao}
 //   gives, with every field, and the five mode probabilities;
+// - after a network outage (every connection cut, then 503s), the page reconnects by
+//   itself and drops the aircraft retired meanwhile (their events were lost);
 // - once some of the first aircraft are retired, the map still shows exactly the tracks;
 // - trails start from the history endpoint;
 // and saves a screenshot. Prints one JSON line of what it measured.
@@ -18,20 +20,49 @@
 // The aircraft are drawn on a canvas (src/api/web/map.js), so the page's state is read
 // through window.adsbMap: its `drawn()` positions are those of the last drawing, and the
 // pixels there are checked.
+import net from "node:net";
 import { chromium } from "playwright-core";
 
-const url = process.argv[2];
+const daemonUrl = process.argv[2];
 const screenshot = process.argv[3] ?? "map.png";
-if (!url) {
+if (!daemonUrl) {
   console.error("usage: node map.mjs URL [SCREENSHOT.png]");
   process.exit(2);
 }
-const origin = new URL(url).origin;
 const executablePath = process.env.CHROMIUM ?? "/usr/bin/chromium";
+
+// The browser reaches the daemon through a TCP relay of ours, which can cut every
+// connection and answer 503 for a while: a network outage, to see the page reconnect.
+const daemon = new URL(daemonUrl);
+const links = new Set();
+let outage = false;
+const relay = net.createServer((client) => {
+  if (outage) {
+    client.end("HTTP/1.1 503 Service Unavailable\r\ncontent-type: application/json\r\ncontent-length: 2\r\nconnection: close\r\n\r\n{}");
+    return;
+  }
+  const up = net.connect(Number(daemon.port), daemon.hostname);
+  const link = [client, up];
+  links.add(link);
+  const close = () => {
+    client.destroy();
+    up.destroy();
+    links.delete(link);
+  };
+  for (const s of link) {
+    s.on("error", close);
+    s.on("close", close);
+  }
+  client.pipe(up);
+  up.pipe(client);
+});
+await new Promise((r) => relay.listen(0, "127.0.0.1", r));
+const url = `http://127.0.0.1:${relay.address().port}/`;
+const origin = new URL(url).origin;
 
 const sleep = (ms) => new Promise((r) => setTimeout(r, ms));
 const api = async (path) => {
-  const r = await fetch(new URL(path, origin));
+  const r = await fetch(new URL(path, daemon.origin));
   if (!r.ok) throw new Error(`${path}: HTTP ${r.status}`);
   return r.json();
 };
@@ -76,7 +107,7 @@ try {
   page.on("request", () => requests++);
   page.on("requestfailed", (r) => {
     // An event stream cut when the page closes is not a failure of the page.
-    if (!r.url().includes("/api/v1/stream")) failed.push(`${r.url()}: ${r.failure()?.errorText}`);
+    if (!r.url().includes("/api/v1/stream") && !outage) failed.push(`${r.url()}: ${r.failure()?.errorText}`);
   });
   // A trail asked for an aircraft retired since its last event is a 404 the page expects
   // (at 10x, 60 s of silence retires an aircraft within 6 s); counted apart.
@@ -84,7 +115,7 @@ try {
   const history = { ok: 0, points: 0, gone: 0 };
   page.on("response", async (r) => {
     if (isHistory(r.url()) && r.status() === 404) history.gone++;
-    else if (r.status() >= 400) failed.push(`${r.url()}: HTTP ${r.status()}`);
+    else if (r.status() >= 400 && !outage) failed.push(`${r.url()}: HTTP ${r.status()}`);
     else if (isHistory(r.url()) && r.status() === 200) {
       history.ok++;
       history.points += (await r.json().catch(() => ({}))).points?.length ?? 0;
@@ -92,7 +123,8 @@ try {
   });
   page.on("pageerror", (e) => errors.push(String(e)));
   page.on("console", (m) => {
-    if (m.type() === "error" && !(m.location()?.url && isHistory(m.location().url))) errors.push(m.text());
+    // (Failed loads are reported as console errors too: judged above, by their response.)
+    if (m.type() === "error" && !m.text().startsWith("Failed to load resource")) errors.push(m.text());
   });
 
   await page.goto(url, { waitUntil: "load" });
@@ -221,6 +253,42 @@ try {
     check(row.length <= 1 && (row.length === 0 || row[0] === clicked), `list rows selected: ${row}`);
   }
 
+  // A network outage: every connection cut, then 503 for every request until an aircraft
+  // the page shows is retired (its `retire` event lost). The page
+  // says so, reconnects by itself (the browser's retry meets the 503 and gives up; the
+  // page's own backoff tries again), and drops the aircraft the new connection's state
+  // does not have.
+  const connections = await page.evaluate(() => window.adsbMap.connections());
+  const beforeOutage = await shown();
+  outage = true;
+  for (const [c, u] of links) {
+    c.destroy();
+    u.destroy();
+  }
+  const noticed = await until(10000, () => page.evaluate(() => document.getElementById("c-stream").textContent !== "live"));
+  check(noticed, "the page did not notice the outage in 10 s");
+  result.outage_status = await page.textContent("#c-stream");
+  // At least 3 s, and until an aircraft the page showed has been retired (at 10x, within
+  // seconds).
+  const outageStart = Date.now();
+  const retiredDuring = await until(30000, async () => {
+    const now = new Set((await api("api/v1/tracks")).tracks.map((t) => t.icao));
+    return Date.now() - outageStart >= 3000 && beforeOutage.some((i) => !now.has(i));
+  }, 500);
+  check(retiredDuring, "no aircraft retired during 30 s of outage");
+  result.outage_s = (Date.now() - outageStart) / 1000;
+  outage = false;
+  const back = await until(40000, () =>
+    page.evaluate((n) => window.adsbMap.connections() > n && document.getElementById("c-stream").textContent === "live", connections),
+  );
+  check(back, "the page did not reconnect within 40 s of the outage's end");
+  result.reconnected = back;
+  const afterOutage = await agreeWithApi(20000);
+  const lost = beforeOutage.filter((i) => !afterOutage.icaos.includes(i));
+  result.after_outage = { markers: afterOutage.markers, tracks: afterOutage.tracks, same: afterOutage.same, retired_meanwhile: lost.length };
+  check(afterOutage.same, `after the outage, the map and /api/v1/tracks differ: ${JSON.stringify({ ...afterOutage, icaos: undefined })}`);
+  check(lost.length > 0, "no aircraft retired during the outage: the test proves nothing of the resync");
+
   // Retired aircraft leave the map: once some of those first shown are retired (a minute of
   // feed time without a message), the map still shows exactly the tracks listed.
   let gone = [];
@@ -254,6 +322,11 @@ try {
   failures.push(`error: ${e?.stack ?? e}`);
 } finally {
   await browser.close();
+  relay.close();
+  for (const [c, u] of links) {
+    c.destroy();
+    u.destroy();
+  }
 }
 console.log(JSON.stringify(result));
 if (failures.length) {

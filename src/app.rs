@@ -4,6 +4,8 @@
 //! [`run`] does everything else and is what the tests call. The daemon knows nothing of HTTP
 //! ([`crate::daemon::Shared`] is all it shows); the API knows nothing of the daemon's tasks.
 
+use crate::config::{Config, ReceiverConfig};
+use crate::daemon::source::{embedded, Replay, ReplayData};
 use crate::daemon::{Daemon, DaemonError, RunSummary, Source};
 use std::path::PathBuf;
 use tokio::net::TcpListener;
@@ -57,4 +59,60 @@ pub async fn run(
         }
     }
     result
+}
+
+/// What `serve` runs: the configured feeds; without any, `replay.file`; without one, the
+/// embedded recording `replay.embedded` (the LAX recording by default), replayed at its real
+/// rate, whose receiver location stands in for `[receiver]` when that is not configured
+/// (surface positions need a reference, readsb's `receiver.json` shows it).
+pub fn serve_source(cfg: &mut Config) -> Result<Source, DaemonError> {
+    if !cfg.feeds.is_empty() {
+        return Ok(Source::Feeds(cfg.feeds.clone()));
+    }
+    let format = match cfg.replay.format.as_str() {
+        "auto" => None,
+        f => Some(
+            f.parse()
+                .map_err(|e: String| DaemonError::Config(format!("replay.format: {e}")))?,
+        ),
+    };
+    let (data, nominal_rate_hz) = if cfg.replay.file.is_empty() {
+        // Validation refuses an unknown name.
+        let e = embedded(&cfg.replay.embedded).ok_or_else(|| {
+            DaemonError::Config(format!(
+                "replay.embedded: no recording {:?}",
+                cfg.replay.embedded
+            ))
+        })?;
+        if cfg.receiver.is_none() {
+            cfg.receiver = Some(ReceiverConfig {
+                lat_deg: e.receiver.0,
+                lon_deg: e.receiver.1,
+            });
+        }
+        (
+            e.data(),
+            e.nominal_rate_hz.unwrap_or(cfg.decode.nominal_rate_hz),
+        )
+    } else {
+        (
+            ReplayData::File(PathBuf::from(&cfg.replay.file)),
+            cfg.decode.nominal_rate_hz,
+        )
+    };
+    tracing::info!(
+        ?data,
+        speed = cfg.replay.speed,
+        nominal_rate_hz,
+        "no feed configured: replaying"
+    );
+    Ok(Source::Replay(Replay {
+        data,
+        format,
+        speed: cfg.replay.speed,
+        loop_: cfg.replay.loop_,
+        nominal_rate_hz,
+        loop_gap_s: cfg.tracker.retire_after_s + 1.0,
+        progress: false,
+    }))
 }

@@ -3,7 +3,7 @@
 
 use adsb_tracker::app::{self, RunOptions};
 use adsb_tracker::config::{Config, MAX_SPEED, MIN_SPEED};
-use adsb_tracker::daemon::source::{Replay, ReplayData, EMBEDDED_DEFAULT, EMBEDDED_RECEIVER};
+use adsb_tracker::daemon::source::{Replay, ReplayData};
 use adsb_tracker::daemon::Source;
 use adsb_tracker::feed::Format;
 use anyhow::{bail, Context, Result};
@@ -37,6 +37,11 @@ enum Command {
         /// Listen address (overrides server.listen).
         #[arg(long)]
         listen: Option<String>,
+        /// Without feeds, the embedded recording to replay: `lax` (the default, 182
+        /// aircraft around Los Angeles) or `afr34zg` (one flight, Paris CDG to Toulouse);
+        /// overrides replay.embedded.
+        #[arg(long)]
+        embedded: Option<String>,
     },
     /// Run the same pipeline on a recording.
     Replay {
@@ -256,49 +261,27 @@ async fn main() -> Result<()> {
     let command = cli.command.unwrap_or(Command::Serve {
         config: None,
         listen: None,
+        embedded: None,
     });
     let shutdown = CancellationToken::new();
     match command {
-        Command::Serve { config, listen } => {
+        Command::Serve {
+            config,
+            listen,
+            embedded,
+        } => {
             let mut cfg = load_config(config.as_ref())?;
             if let Some(l) = listen {
                 cfg.server.listen = l;
-                cfg.validate()?;
             }
+            if let Some(e) = embedded {
+                cfg.replay.embedded = e;
+            }
+            cfg.validate()?;
             let listener = tokio::net::TcpListener::bind(&cfg.server.listen)
                 .await
                 .with_context(|| format!("binding {}", cfg.server.listen))?;
-            let source = if cfg.feeds.is_empty() {
-                let data = if cfg.replay.file.is_empty() {
-                    // The embedded flight starts at a gate at Paris-CDG: surface positions
-                    // need a reference, so lend it the airport's unless one is configured.
-                    if cfg.receiver.is_none() {
-                        cfg.receiver = Some(adsb_tracker::config::ReceiverConfig {
-                            lat_deg: EMBEDDED_RECEIVER.0,
-                            lon_deg: EMBEDDED_RECEIVER.1,
-                        });
-                    }
-                    EMBEDDED_DEFAULT
-                } else {
-                    ReplayData::File(PathBuf::from(&cfg.replay.file))
-                };
-                tracing::info!(
-                    ?data,
-                    speed = cfg.replay.speed,
-                    "no feed configured: replaying"
-                );
-                Source::Replay(Replay {
-                    data,
-                    format: parse_format(&cfg.replay.format)?,
-                    speed: cfg.replay.speed,
-                    loop_: cfg.replay.loop_,
-                    nominal_rate_hz: cfg.decode.nominal_rate_hz,
-                    loop_gap_s: cfg.tracker.retire_after_s + 1.0,
-                    progress: false,
-                })
-            } else {
-                Source::Feeds(cfg.feeds.clone())
-            };
+            let source = app::serve_source(&mut cfg)?;
             tracing::info!("serving on http://{}", listener.local_addr()?);
             install_signals(shutdown.clone());
             app::run(

@@ -3,6 +3,8 @@
 //! Errors are `{"error": "..."}` with a 4xx status: 400 for malformed input, 404 for an unknown
 //! aircraft or endpoint.
 
+pub mod openapi;
+pub mod readsb;
 pub mod server;
 pub mod stream;
 mod web;
@@ -54,7 +56,8 @@ impl IntoResponse for ApiError {
     }
 }
 
-#[derive(Serialize)]
+/// Every error: `{"error": "..."}`.
+#[derive(Serialize, utoipa::ToSchema)]
 struct ErrorBody {
     error: String,
 }
@@ -64,6 +67,8 @@ struct ErrorBody {
 struct ApiState {
     shared: Shared,
     tracks: Arc<TracksCache>,
+    /// `now` of readsb's `aircraft.json`.
+    readsb_now: Arc<readsb::NowClock>,
 }
 
 impl FromRef<ApiState> for Shared {
@@ -85,11 +90,14 @@ pub fn app(shared: Shared) -> Router {
         tracks: Arc::new(TracksCache::new(Duration::from_millis(
             server.tracks_cache_ms,
         ))),
+        readsb_now: Arc::new(readsb::NowClock::default()),
         shared,
     };
     let pages = web::routes(&state.shared.config);
-    Router::new()
+    let tar1090_dir = state.shared.config.server.readsb.tar1090_dir.clone();
+    let router = Router::new()
         .merge(pages)
+        .route("/api/v1/openapi.json", get(openapi::openapi_json))
         .route("/api/v1/tracks", get(tracks))
         .route("/api/v1/tracks/{icao}", get(track))
         .route("/api/v1/tracks/{icao}/prediction", get(prediction))
@@ -98,6 +106,26 @@ pub fn app(shared: Shared) -> Router {
         .route("/api/v1/stats", get(stats))
         .route("/healthz", get(healthz))
         .route("/metrics", get(metrics))
+        .route("/data/aircraft.json", get(readsb::aircraft))
+        .route("/data/receiver.json", get(readsb::receiver));
+    // tar1090's page, from the user's copy of its html/ (paths cannot leave the directory;
+    // a file that is not there is a 404 {"error"} like any other); its data/ is ours.
+    let router = if tar1090_dir.is_empty() {
+        router
+    } else {
+        router
+            .route("/tar1090/data/aircraft.json", get(readsb::aircraft))
+            .route("/tar1090/data/receiver.json", get(readsb::receiver))
+            .route(
+                "/tar1090",
+                get(|| async { axum::response::Redirect::permanent("/tar1090/") }),
+            )
+            .nest_service(
+                "/tar1090/",
+                tower_http::services::ServeDir::new(tar1090_dir),
+            )
+    };
+    router
         .fallback(|| async { ApiError::NotFound("no such endpoint".into()) })
         .with_state(state)
         .layer(tower_http::timeout::TimeoutLayer::with_status_code(
@@ -338,6 +366,15 @@ impl BBox {
 
 /// Every track, or those in `bbox` and of the `mode`s asked, with the feed time. Served
 /// from [`TracksCache`]; a filtered list is serialised from the cached tracks.
+#[utoipa::path(get, path = "/api/v1/tracks", tag = "tracks",
+    params(
+        ("bbox" = Option<String>, Query, description = "south,west,north,east in degrees (west > east crosses the antimeridian)"),
+        ("mode" = Option<String>, Query, description = "comma-separated flight-mode labels: CV, CA, CT, CH, CHCA"),
+    ),
+    responses(
+        (status = 200, description = "The tracks with an estimate", body = openapi::Tracks),
+        (status = 400, description = "A malformed or unknown parameter", body = ErrorBody),
+    ))]
 async fn tracks(
     State(api): State<ApiState>,
     query: Result<Query<TracksQuery>, QueryRejection>,
@@ -377,6 +414,13 @@ fn icao_of(path: Result<Path<String>, PathRejection>) -> Result<Icao, ApiError> 
     icao.parse().map_err(ApiError::BadRequest)
 }
 
+#[utoipa::path(get, path = "/api/v1/tracks/{icao}", tag = "tracks",
+    params(("icao" = String, Path, description = "ICAO address, 6 hex digits")),
+    responses(
+        (status = 200, description = "The aircraft's track", body = crate::daemon::registry::TrackState),
+        (status = 400, description = "Not 6 hex digits", body = ErrorBody),
+        (status = 404, description = "No track for this aircraft", body = ErrorBody),
+    ))]
 async fn track(
     State(shared): State<Shared>,
     path: Result<Path<String>, PathRejection>,
@@ -389,8 +433,10 @@ async fn track(
         .ok_or_else(|| ApiError::NotFound(format!("no track for {icao}")))
 }
 
-#[derive(Serialize)]
+#[derive(Serialize, utoipa::ToSchema)]
+#[schema(as = Predictions)]
 struct PredictionBody {
+    #[schema(value_type = String, pattern = "^[0-9a-f]{6}$")]
     icao: Icao,
     /// Time of the estimate the predictions start from, s.
     t: f64,
@@ -399,6 +445,13 @@ struct PredictionBody {
 }
 
 /// Positions predicted by the current mode's model at the configured horizons.
+#[utoipa::path(get, path = "/api/v1/tracks/{icao}/prediction", tag = "tracks",
+    params(("icao" = String, Path, description = "ICAO address, 6 hex digits")),
+    responses(
+        (status = 200, description = "Predicted positions", body = PredictionBody),
+        (status = 400, description = "Not 6 hex digits", body = ErrorBody),
+        (status = 404, description = "No track for this aircraft", body = ErrorBody),
+    ))]
 async fn prediction(
     State(shared): State<Shared>,
     path: Result<Path<String>, PathRejection>,
@@ -417,14 +470,23 @@ async fn prediction(
 }
 
 /// `GET /api/v1/tracks/{icao}/history` body.
-#[derive(Serialize)]
+#[derive(Serialize, utoipa::ToSchema)]
+#[schema(as = History)]
 struct HistoryBody {
+    #[schema(value_type = String, pattern = "^[0-9a-f]{6}$")]
     icao: Icao,
     /// Oldest first.
     points: Vec<crate::daemon::history::TrailPoint>,
 }
 
 /// The aircraft's recent trail of estimated positions (`[history]`), oldest first.
+#[utoipa::path(get, path = "/api/v1/tracks/{icao}/history", tag = "tracks",
+    params(("icao" = String, Path, description = "ICAO address, 6 hex digits")),
+    responses(
+        (status = 200, description = "The trail, oldest first", body = HistoryBody),
+        (status = 400, description = "Not 6 hex digits", body = ErrorBody),
+        (status = 404, description = "No track for this aircraft", body = ErrorBody),
+    ))]
 async fn history(
     State(shared): State<Shared>,
     path: Result<Path<String>, PathRejection>,
@@ -437,11 +499,13 @@ async fn history(
     Ok(Json(HistoryBody { icao, points }))
 }
 
+#[utoipa::path(get, path = "/api/v1/stats", tag = "daemon",
+    responses((status = 200, description = "The daemon's counters", body = crate::daemon::stats::StatsSnapshot)))]
 async fn stats(State(shared): State<Shared>) -> Json<crate::daemon::stats::StatsSnapshot> {
     Json(shared.stats.snapshot())
 }
 
-#[derive(Serialize)]
+#[derive(Serialize, utoipa::ToSchema)]
 struct Health {
     /// "ok", or "degraded" while a configured live feed is down or silent (no frame for
     /// half its `silence_timeout_s`), or the ingest lag is past `pipeline.max_lag_s`.
@@ -456,6 +520,11 @@ struct Health {
 /// 200 while the daemon can serve fresh data; 503 while a live feed is down or silent, or
 /// ingest lags more than `pipeline.max_lag_s` behind (the API keeps serving the last state
 /// meanwhile).
+#[utoipa::path(get, path = "/healthz", tag = "daemon",
+    responses(
+        (status = 200, description = "Serving fresh data", body = Health),
+        (status = 503, description = "Degraded: a feed down or silent, ingest lagging, or a pipeline task died", body = Health),
+    ))]
 async fn healthz(State(shared): State<Shared>) -> Response {
     let feeds = shared.stats.feeds();
     let feeds_down = feeds.iter().any(|f| f.silent);
@@ -480,6 +549,9 @@ async fn healthz(State(shared): State<Shared>) -> Response {
     (code, Json(body)).into_response()
 }
 
+#[utoipa::path(get, path = "/metrics", tag = "daemon",
+    responses((status = 200, description = "Prometheus / OpenMetrics text", body = String,
+        content_type = "application/openmetrics-text; version=1.0.0; charset=utf-8")))]
 async fn metrics(State(shared): State<Shared>) -> Response {
     (
         [(

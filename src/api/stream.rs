@@ -214,6 +214,17 @@ impl Settings {
 
 /// The handler: checks the filters and the client cap, starts the client's task and answers
 /// with its events.
+#[utoipa::path(get, path = "/api/v1/stream", tag = "stream",
+    params(
+        ("bbox" = Option<String>, Query, description = "minLon,minLat,maxLon,maxLat in degrees (minLon > maxLon crosses the antimeridian)"),
+        ("icao" = Option<String>, Query, description = "comma-separated ICAO addresses, 6 hex digits each"),
+        ("mode" = Option<String>, Query, description = "comma-separated flight-mode labels: CV, CA, CT, CH, CHCA"),
+    ),
+    responses(
+        (status = 200, description = "Server-sent events: `track` (data: a Track), `retire` (data: a Retire), `stats` (data: the Stats)", body = String, content_type = "text/event-stream"),
+        (status = 400, description = "A malformed or unknown parameter", body = super::ErrorBody),
+        (status = 503, description = "Over server.stream.max_clients", body = super::ErrorBody),
+    ))]
 pub(super) async fn stream(
     State(api): State<ApiState>,
     query: Result<Query<StreamQuery>, QueryRejection>,
@@ -309,9 +320,10 @@ struct Client {
     last_write: Instant,
 }
 
-/// Why an `retire` event is sent.
-#[derive(Serialize)]
-struct Retire {
+/// The data of a `retire` event.
+#[derive(Serialize, utoipa::ToSchema)]
+pub(super) struct Retire {
+    #[schema(value_type = String, pattern = "^[0-9a-f]{6}$")]
     icao: Icao,
     /// Feed time, s.
     t: f64,

@@ -216,6 +216,8 @@ pub fn default_silence_timeout_s() -> f64 {
 pub struct ReplayConfig {
     /// Recording to replay when no feed is configured; empty = the embedded recording.
     pub file: String,
+    /// Which embedded recording (`lax`, `afr34zg`) when `file` is empty.
+    pub embedded: String,
     /// `auto` or one of the formats.
     pub format: String,
     /// Feed seconds per wall second; 0 = as fast as possible.
@@ -376,6 +378,20 @@ impl Config {
                 0.5,
                 86_400.0,
             )?;
+        }
+        if crate::daemon::source::embedded(&self.replay.embedded).is_none() {
+            let names: Vec<&str> = crate::daemon::source::EMBEDDED
+                .iter()
+                .map(|e| e.name)
+                .collect();
+            return Err(bad(
+                "replay.embedded",
+                format!(
+                    "no embedded recording {:?}; expected one of {}",
+                    self.replay.embedded,
+                    names.join(", ")
+                ),
+            ));
         }
         if self.replay.format != "auto" && self.replay.format.parse::<Format>().is_err() {
             return Err(bad(
@@ -578,6 +594,7 @@ mod tests {
             ("[server.stream]\nmax_clients = 0\n", "server.stream.max_clients"),
             ("[server.stream]\nclient_buffer_bytes = 10\n", "server.stream.client_buffer_bytes"),
             ("[server.stream]\nbogus = 1\n", "bogus"),
+            ("[replay]\nembedded = \"cdg\"\n", "replay.embedded"),
             ("[history]\nwindow_minutes = 0.0\n", "history.window_minutes"),
             ("[history]\nwindow_minutes = inf\n", "history.window_minutes"),
             ("[history]\nmax_points = 100000000\n", "history.max_points"),

@@ -108,6 +108,9 @@ fn publishable(e: &crate::track::Estimate) -> bool {
         && e.mode_probabilities.iter().all(|x| x.is_finite())
 }
 
+/// Messages over which the received power is averaged (readsb averages its last 8).
+const SIGNAL_MEAN_MESSAGES: f32 = 8.0;
+
 /// Variance of a 1-kt velocity quantisation step ((1 kt)^2 / 12), and of a 64-fpm vertical step.
 const KT_QUANT_VAR: f64 = KT_TO_MPS * KT_TO_MPS / 12.0;
 const VRATE_QUANT_VAR: f64 = (64.0 * FPM_TO_MPS) * (64.0 * FPM_TO_MPS) / 12.0;
@@ -177,6 +180,13 @@ impl Aircraft {
     pub fn handle(&mut self, d: &Decoded, counts: &mut Counts) -> bool {
         self.facts.messages += 1;
         self.facts.last_seen = self.facts.last_seen.max(d.time_s);
+        if let Some(signal) = d.signal {
+            let power = (f32::from(signal) / 255.0).powi(2);
+            self.facts.signal_power = Some(match self.facts.signal_power {
+                Some(mean) => mean + (power - mean) / SIGNAL_MEAN_MESSAGES,
+                None => power,
+            });
+        }
         let t = d.time_s;
         let measurement = match d.msg {
             Message::Identification { category, callsign } => {
@@ -208,6 +218,7 @@ impl Aircraft {
                 cpr,
             } => {
                 self.facts.on_ground = false;
+                self.facts.position_type_code = Some(type_code);
                 if alt_source == AltitudeSource::Baro && alt_ft.is_some() {
                     self.facts.baro_alt_ft = alt_ft;
                 }
@@ -227,6 +238,7 @@ impl Aircraft {
                 track_deg,
             } => {
                 self.facts.on_ground = true;
+                self.facts.position_type_code = Some(type_code);
                 let fix = self.cpr.surface(t, cpr);
                 let mut m = self.position_measurement(t, fix, None, type_code, counts);
                 if let (Some(m), Some(speed), Some(track)) = (m.as_mut(), speed_kt, track_deg) {
@@ -239,7 +251,13 @@ impl Aircraft {
                 }
                 m
             }
-            Message::Velocity(v) => self.velocity_measurement(t, &v),
+            Message::Velocity(v) => {
+                self.facts.nac_v = Some(v.nac_v);
+                if v.gnss_minus_baro_ft.is_some() {
+                    self.facts.geom_minus_baro_ft = v.gnss_minus_baro_ft;
+                }
+                self.velocity_measurement(t, &v)
+            }
             Message::AllCall { .. } | Message::Other { .. } => None,
         };
         let Some(m) = measurement else {
@@ -408,6 +426,18 @@ impl Aircraft {
         })
     }
 
+    /// The estimate's time and geodetic position (lat, lon in degrees, altitude in m), for
+    /// the trail; `None` without an estimate or when it could not be published.
+    pub fn position(&self) -> Option<(f64, f64, f64, f64)> {
+        let estimate = self.tracker.estimate()?;
+        let frame = self.frame?;
+        if !(estimate.t_s.is_finite() && publishable_point(&estimate.pos_m)) {
+            return None;
+        }
+        let (lat, lon, alt_m) = frame.to_geodetic(&estimate.pos_m);
+        Some((estimate.t_s, lat, lon, alt_m))
+    }
+
     /// The state with predicted positions `horizons_s` seconds ahead (checked as
     /// [`published`](Self::published) is).
     pub fn snapshot_with_predictions(
@@ -475,6 +505,12 @@ pub async fn run_task(
     let mut counts = Counts::default();
     let cancelled = ctx.shutdown.cancelled();
     tokio::pin!(cancelled);
+    // The trail takes a point at most every `min_interval_s` of feed time: checked here on
+    // the message's time, so the estimate is read and converted once per point, whatever
+    // the update rate and however the messages are batched.
+    let history = *ctx.registry.history_config();
+    let trail_interval_s = history.min_interval_s();
+    let mut next_trail_t_s = f64::NEG_INFINITY;
     loop {
         let batch = tokio::select! {
             biased;
@@ -486,6 +522,15 @@ pub async fn run_task(
         };
         for d in &batch.msgs {
             let updated = aircraft.handle(d, &mut counts);
+            if updated
+                && (d.time_s >= next_trail_t_s
+                    || d.time_s < next_trail_t_s - 2.0 * trail_interval_s)
+            {
+                if let Some((t_s, lat, lon, alt_m)) = aircraft.position() {
+                    slot.record(&history, t_s, lat, lon, alt_m);
+                    next_trail_t_s = t_s + trail_interval_s;
+                }
+            }
             if updated && ctx.feed.heard() {
                 if let Some(p) = aircraft.published(&[], &mut counts) {
                     ctx.feed
@@ -522,10 +567,9 @@ pub async fn run_task(
 /// Swaps the aircraft's new snapshot into its slot. The old one is freed when its last
 /// reader lets go. (Recycling it saved one allocation a batch but kept a second snapshot
 /// alive per aircraft, 650 bytes each: memory per aircraft is the scarcer resource.)
-/// The trail takes a point of it when one is due (`[history]`).
 fn publish(aircraft: &mut Aircraft, slot: &Slot, ctx: &TaskContext, counts: &mut Counts) {
     if let Some(p) = aircraft.published(&ctx.prediction_horizons_s, counts) {
-        slot.store(Arc::new(p), ctx.registry.history_config());
+        slot.store(Arc::new(p));
     }
 }
 

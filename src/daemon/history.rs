@@ -13,7 +13,7 @@ use serde::Serialize;
 use std::collections::VecDeque;
 
 /// One point as served: feed time, s; position, degrees; altitude, m.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, utoipa::ToSchema)]
 pub struct TrailPoint {
     pub t: f64,
     pub lat: f64,
@@ -245,7 +245,7 @@ mod tests {
         trail.push(&c, 1000.0, 1.0, 1.0, 1.0);
         trail.push(&c, 10_000.0, 1.0, 1.0, 1.0);
         // The newest point's time again (rounded in storage) is no step back.
-        trail.push(&c, 10_000.0004, 3.0, 3.0, 3.0);
+        trail.push(&c, 10_000.000_4, 3.0, 3.0, 3.0);
         assert_eq!(trail.points().len(), 2);
         trail.push(&c, 10.0, 2.0, 2.0, 2.0);
         assert_eq!(trail.points().len(), 1);

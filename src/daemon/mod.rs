@@ -71,6 +71,9 @@ pub enum DaemonError {
     /// A task that must run until shutdown ended before it.
     #[error("{0}")]
     Died(String),
+    /// A setting the source cannot be made from.
+    #[error("{0}")]
+    Config(String),
 }
 
 impl From<crate::feed::FeedError> for DaemonError {

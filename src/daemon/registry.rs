@@ -24,7 +24,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, PoisonError, RwLock};
 
 /// Probability of each flight mode, as JSON `{"CV": .., "CA": .., ...}`.
-#[derive(Clone, Debug, PartialEq, Serialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, utoipa::ToSchema)]
 pub struct ModeProbabilities {
     #[serde(rename = "CV")]
     pub cv: f64,
@@ -54,10 +54,13 @@ impl From<[f64; 5]> for ModeProbabilities {
 /// One aircraft's published state: the `Track` of the HTTP API and the `--tracks-out` line.
 ///
 /// The first fields are the update-line contract of DESIGN.md; more follow.
-#[derive(Clone, Debug, PartialEq, Serialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, utoipa::ToSchema)]
+#[schema(as = Track)]
 pub struct TrackState {
     /// Feed time of the estimate, s.
     pub t: f64,
+    /// ICAO 24-bit address, 6 lowercase hex digits.
+    #[schema(value_type = String, pattern = "^[0-9a-f]{6}$")]
     pub icao: Icao,
     pub lat: f64,
     pub lon: f64,
@@ -107,17 +110,20 @@ pub struct TrackState {
     pub positions_accepted: u64,
     pub positions_rejected: u64,
     /// Position covariance in the east-north-up axes at the aircraft, m^2 (row-major 3x3).
+    #[schema(value_type = Vec<Vec<f64>>)]
     pub pos_cov_enu_m2: [[f64; 3]; 3],
     /// Velocity covariance in the same axes, (m/s)^2.
+    #[schema(value_type = Vec<Vec<f64>>)]
     pub vel_cov_enu_m2ps2: [[f64; 3]; 3],
     /// Predicted positions at the configured horizons (published snapshots only; empty in
     /// `--tracks-out` lines).
     #[serde(skip_serializing_if = "Vec::is_empty")]
+    #[schema(required = false)]
     pub predictions: Vec<Prediction>,
 }
 
 /// A predicted position (paper 002 §1.3: extrapolation by the current mode's model).
-#[derive(Clone, Debug, PartialEq, Serialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, utoipa::ToSchema)]
 pub struct Prediction {
     /// Seconds ahead of the estimate.
     pub dt_s: f64,
@@ -160,6 +166,17 @@ pub struct AircraftFacts {
     pub last_seen: f64,
     pub positions_accepted: u64,
     pub positions_rejected: u64,
+    /// NACv of the last velocity report (DO-260B §2.2.3.2.6.1.5).
+    pub nac_v: Option<u8>,
+    /// GNSS minus barometric altitude of the last velocity report that carried it, ft.
+    pub geom_minus_baro_ft: Option<i32>,
+    /// Type code of the last position report (it gives the NIC, with the supplements
+    /// unknown: DO-260B Table 2-14).
+    pub position_type_code: Option<u8>,
+    /// Mean received power of the recent messages, as a fraction of full scale (Beast's
+    /// signal byte squared over 255^2; an exponential mean over about 8 messages), when the
+    /// feed carries it.
+    pub signal_power: Option<f32>,
 }
 
 /// One aircraft's published snapshot: estimate in the track's plane, the plane, the facts.
@@ -290,17 +307,17 @@ pub struct SlotCell {
 }
 
 impl SlotCell {
-    /// Publishes a snapshot, and adds its position to the trail when one is due.
-    pub fn store(&self, p: Arc<Published>, history: &HistoryConfig) {
-        let t_s = p.estimate.t_s;
-        {
-            let mut trail = self.trail.lock().unwrap_or_else(PoisonError::into_inner);
-            if trail.wants(history, t_s) {
-                let (lat, lon, alt_m) = p.frame.to_geodetic(&p.estimate.pos_m);
-                trail.push(history, t_s, lat, lon, alt_m);
-            }
-        }
+    /// Publishes a snapshot.
+    pub fn store(&self, p: Arc<Published>) {
         self.snapshot.store(Some(p));
+    }
+
+    /// Adds an estimated position to the trail (kept if due: see [`Trail::push`]).
+    pub fn record(&self, history: &HistoryConfig, t_s: f64, lat: f64, lon: f64, alt_m: f64) {
+        self.trail
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .push(history, t_s, lat, lon, alt_m);
     }
 
     /// The latest snapshot.

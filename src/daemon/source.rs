@@ -38,16 +38,62 @@ impl std::fmt::Debug for ReplayData {
     }
 }
 
-/// The embedded default recording: AFR34ZG, Paris CDG to Toulouse, gate to gate
-/// (fixtures/afr34zg-cdg-tls.jsonl, MIT, xoolive/traffic; see fixtures/README.md).
-pub const EMBEDDED_DEFAULT: ReplayData = ReplayData::Embedded {
-    name: "afr34zg-cdg-tls.jsonl",
-    bytes: include_bytes!("../../fixtures/afr34zg-cdg-tls.jsonl"),
+/// A recording compiled into the binary, selectable by `replay.embedded` when no feed and
+/// no `replay.file` is configured (fixtures/README.md has their sources, all MIT).
+#[derive(Clone, Copy, Debug)]
+pub struct EmbeddedRecording {
+    /// Its name in `replay.embedded`.
+    pub name: &'static str,
+    pub file: &'static str,
+    pub bytes: &'static [u8],
+    /// Frames per second of feed time for a recording without timestamps: its real rate.
+    pub nominal_rate_hz: Option<f64>,
+    /// A receiver location near it (the reference for surface positions, and the receiver
+    /// of readsb's `receiver.json`), used when the configuration gives none.
+    pub receiver: (f64, f64),
+    pub description: &'static str,
+}
+
+impl EmbeddedRecording {
+    pub fn data(&self) -> ReplayData {
+        ReplayData::Embedded {
+            name: self.file,
+            bytes: self.bytes,
+        }
+    }
+}
+
+/// The busiest real recording: 182 aircraft around Los Angeles, AVR text without
+/// timestamps, whose real rate is about 270 frames/s (measured from aircraft displacement
+/// against reported ground speed): a terminal area with turns, climbs and descents.
+pub const EMBEDDED_LAX: EmbeddedRecording = EmbeddedRecording {
+    name: "lax",
+    file: "lax-messages.avr.txt",
+    bytes: include_bytes!("../../fixtures/lax-messages.avr.txt"),
+    nominal_rate_hz: Some(270.0),
+    // Los Angeles International, aerodrome reference point.
+    receiver: (33.9425, -118.4081),
+    description: "182 aircraft around Los Angeles (rsadsb/adsb_deku)",
 };
 
-/// A receiver location for the embedded recording (Paris-CDG aerodrome reference point),
-/// used as the surface CPR reference when the configuration gives none.
-pub const EMBEDDED_RECEIVER: (f64, f64) = (49.0097, 2.5479);
+/// AFR34ZG, Paris CDG to Toulouse, gate to gate (xoolive/traffic): one flight in real time.
+pub const EMBEDDED_AFR34ZG: EmbeddedRecording = EmbeddedRecording {
+    name: "afr34zg",
+    file: "afr34zg-cdg-tls.jsonl",
+    bytes: include_bytes!("../../fixtures/afr34zg-cdg-tls.jsonl"),
+    nominal_rate_hz: None,
+    // Paris-CDG, aerodrome reference point.
+    receiver: (49.0097, 2.5479),
+    description: "AFR34ZG, Paris CDG to Toulouse, gate to gate (xoolive/traffic)",
+};
+
+/// Every embedded recording; the first is the default.
+pub const EMBEDDED: &[EmbeddedRecording] = &[EMBEDDED_LAX, EMBEDDED_AFR34ZG];
+
+/// The embedded recording of that name.
+pub fn embedded(name: &str) -> Option<&'static EmbeddedRecording> {
+    EMBEDDED.iter().find(|e| e.name == name)
+}
 
 /// A replay to run.
 #[derive(Clone, Debug)]

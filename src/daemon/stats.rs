@@ -118,7 +118,7 @@ pub struct StreamStats {
 }
 
 /// A copy of [`StreamStats`].
-#[derive(Clone, Debug, PartialEq, Serialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, utoipa::ToSchema)]
 pub struct StreamStatsSnapshot {
     pub clients: i64,
     pub clients_accepted: u64,
@@ -175,7 +175,7 @@ impl StreamStats {
 }
 
 /// A copy of [`HttpStats`].
-#[derive(Clone, Debug, PartialEq, Serialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, utoipa::ToSchema)]
 pub struct HttpStatsSnapshot {
     pub connections_open: i64,
     pub connections_refused: u64,
@@ -606,7 +606,8 @@ pub const POSITION_REJECT_REASONS: &[&str] = &[
 pub const TRACK_ERROR_REASONS: &[&str] = &["not_positive_definite", "out_of_order", "non_finite"];
 
 /// `GET /api/v1/stats`.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, utoipa::ToSchema)]
+#[schema(as = Stats)]
 pub struct StatsSnapshot {
     pub feed_time: f64,
     /// True once a replay was read to its end and fully processed.
@@ -749,7 +750,7 @@ struct LatencyInner {
 
 /// Quantiles read from the histogram's buckets (each the upper bound of the bucket that
 /// holds it, so within a factor of 2 above the true value).
-#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+#[derive(Clone, Debug, Default, PartialEq, Serialize, utoipa::ToSchema)]
 pub struct LatencySummary {
     pub count: u64,
     pub mean_s: f64,

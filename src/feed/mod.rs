@@ -121,7 +121,7 @@ impl std::str::FromStr for Format {
 }
 
 /// What a parser saw, counted: nothing is skipped silently.
-#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+#[derive(Clone, Debug, Default, PartialEq, Serialize, utoipa::ToSchema)]
 pub struct ParseStats {
     /// Frames handed on.
     pub frames: u64,

@@ -108,7 +108,7 @@ pub struct FeedStatus {
 }
 
 /// A point-in-time copy of [`FeedStatus`].
-#[derive(Clone, Debug, PartialEq, Serialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, utoipa::ToSchema)]
 pub struct FeedStatusSnapshot {
     pub name: String,
     pub connected: bool,

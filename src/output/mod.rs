@@ -141,7 +141,7 @@ pub struct OutputStats {
 }
 
 /// One output's counters, as `/api/v1/stats` shows them.
-#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+#[derive(Clone, Debug, Default, PartialEq, Serialize, utoipa::ToSchema)]
 pub struct OutputCounts {
     pub messages_sent: u64,
     pub datagrams_sent: u64,
@@ -154,7 +154,7 @@ pub struct OutputCounts {
 }
 
 /// The three outputs' counters.
-#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+#[derive(Clone, Debug, Default, PartialEq, Serialize, utoipa::ToSchema)]
 pub struct OutputStatsSnapshot {
     pub asterix: OutputCounts,
     pub sbs: OutputCounts,

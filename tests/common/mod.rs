@@ -112,3 +112,203 @@ impl TestDaemon {
             .unwrap()
     }
 }
+
+/// One server-sent event: its name and its data (one line of JSON here).
+#[derive(Clone, Debug)]
+pub struct SseEvent {
+    pub name: String,
+    pub data: String,
+    /// When it was read.
+    pub at: tokio::time::Instant,
+}
+
+impl SseEvent {
+    pub fn json(&self) -> serde_json::Value {
+        serde_json::from_str(&self.data).unwrap_or_else(|e| panic!("{e}: {}", self.data))
+    }
+}
+
+/// A server-sent-events client over a raw socket: the response head, then the chunked body
+/// decoded and cut into events as a browser's EventSource does.
+pub struct SseClient {
+    stream: tokio::net::TcpStream,
+    /// Bytes read and not yet decoded from the chunked encoding.
+    raw: Vec<u8>,
+    /// Decoded body not yet cut into events.
+    body: Vec<u8>,
+    /// The response head.
+    pub head: String,
+    pub status: u16,
+    ended: bool,
+}
+
+impl SseClient {
+    /// Sends the request and reads the response head.
+    pub async fn connect(addr: SocketAddr, path: &str) -> Self {
+        let mut stream = tokio::net::TcpStream::connect(addr).await.unwrap();
+        let req = format!("GET {path} HTTP/1.1\r\nHost: test\r\nAccept: text/event-stream\r\n\r\n");
+        stream.write_all(req.as_bytes()).await.unwrap();
+        let mut raw = Vec::new();
+        let head_end = loop {
+            if let Some(i) = raw.windows(4).position(|w| w == b"\r\n\r\n") {
+                break i;
+            }
+            let mut buf = [0u8; 4096];
+            let n = tokio::time::timeout(Duration::from_secs(10), stream.read(&mut buf))
+                .await
+                .expect("no response head within 10 s")
+                .unwrap();
+            assert!(n > 0, "connection closed before the head");
+            raw.extend_from_slice(&buf[..n]);
+        };
+        let head = String::from_utf8_lossy(&raw[..head_end]).to_string();
+        let status = head.split(' ').nth(1).unwrap().parse().unwrap();
+        raw.drain(..head_end + 4);
+        Self {
+            stream,
+            raw,
+            body: Vec::new(),
+            head,
+            status,
+            ended: false,
+        }
+    }
+
+    /// The body of a response that is not a stream (an error, with a content-length).
+    pub async fn read_to_end(mut self) -> String {
+        let length = self.head.lines().find_map(|l| {
+            let (k, v) = l.split_once(':')?;
+            k.eq_ignore_ascii_case("content-length")
+                .then(|| v.trim().parse::<usize>().ok())?
+        });
+        if let Some(n) = length {
+            while self.raw.len() < n {
+                let mut buf = [0u8; 4096];
+                let got = tokio::time::timeout(Duration::from_secs(5), self.stream.read(&mut buf))
+                    .await
+                    .expect("body within 5 s")
+                    .unwrap();
+                assert!(got > 0, "closed before the body's end");
+                self.raw.extend_from_slice(&buf[..got]);
+            }
+            return String::from_utf8_lossy(&self.raw[..n]).to_string();
+        }
+        let _ = tokio::time::timeout(Duration::from_secs(5), async {
+            while !self.ended {
+                self.read_more().await;
+            }
+        })
+        .await;
+        String::from_utf8_lossy(&self.body).to_string()
+    }
+
+    /// Decodes what the chunked encoding holds so far into `body`.
+    fn decode(&mut self) {
+        loop {
+            let Some(eol) = self.raw.windows(2).position(|w| w == b"\r\n") else {
+                return;
+            };
+            let size_text = String::from_utf8_lossy(&self.raw[..eol]).to_string();
+            let size = usize::from_str_radix(size_text.trim(), 16)
+                .unwrap_or_else(|e| panic!("bad chunk size {size_text:?}: {e}"));
+            if self.raw.len() < eol + 2 + size + 2 {
+                return;
+            }
+            if size == 0 {
+                self.ended = true;
+                self.raw.clear();
+                return;
+            }
+            self.body
+                .extend_from_slice(&self.raw[eol + 2..eol + 2 + size]);
+            self.raw.drain(..eol + 2 + size + 2);
+        }
+    }
+
+    async fn read_more(&mut self) {
+        let mut buf = [0u8; 65536];
+        let n = self.stream.read(&mut buf).await.unwrap_or(0);
+        if n == 0 {
+            self.ended = true;
+        }
+        self.raw.extend_from_slice(&buf[..n]);
+        self.decode();
+    }
+
+    /// The next event (comments and `retry:` lines skipped), or None when the stream ends or
+    /// nothing comes within `within`.
+    pub async fn next_event(&mut self, within: Duration) -> Option<SseEvent> {
+        let deadline = tokio::time::Instant::now() + within;
+        loop {
+            while let Some(end) = self.body.windows(2).position(|w| w == b"\n\n") {
+                let block = String::from_utf8(self.body[..end].to_vec()).unwrap();
+                self.body.drain(..end + 2);
+                let mut name = None;
+                let mut data = None;
+                for line in block.lines() {
+                    if let Some(v) = line.strip_prefix("event: ") {
+                        name = Some(v.to_string());
+                    } else if let Some(v) = line.strip_prefix("data: ") {
+                        data = Some(v.to_string());
+                    }
+                }
+                if let Some(data) = data {
+                    return Some(SseEvent {
+                        name: name.unwrap_or_else(|| "message".into()),
+                        data,
+                        at: tokio::time::Instant::now(),
+                    });
+                }
+            }
+            if self.ended {
+                return None;
+            }
+            if tokio::time::timeout_at(deadline, self.read_more())
+                .await
+                .is_err()
+            {
+                return None;
+            }
+        }
+    }
+
+    /// Every event within `within`.
+    pub async fn events_for(&mut self, within: Duration) -> Vec<SseEvent> {
+        let deadline = tokio::time::Instant::now() + within;
+        let mut v = Vec::new();
+        loop {
+            let left = deadline.saturating_duration_since(tokio::time::Instant::now());
+            if left.is_zero() {
+                return v;
+            }
+            match self.next_event(left).await {
+                Some(e) => v.push(e),
+                None => return v,
+            }
+        }
+    }
+}
+
+/// A replay of `name` paced at `speed` (feed seconds per wall second), once.
+pub fn paced(name: &str, config: &Config, speed: f64) -> Source {
+    Source::Replay(Replay {
+        data: ReplayData::File(fixture(name)),
+        format: None,
+        speed,
+        loop_: false,
+        nominal_rate_hz: config.decode.nominal_rate_hz,
+        loop_gap_s: 0.0,
+        progress: false,
+    })
+}
+
+/// Resident set size of this process, bytes (Linux).
+pub fn rss_bytes() -> u64 {
+    let statm = std::fs::read_to_string("/proc/self/statm").unwrap_or_default();
+    let pages: u64 = statm
+        .split_whitespace()
+        .nth(1)
+        .and_then(|p| p.parse().ok())
+        .unwrap_or(0);
+    pages * 4096
+}

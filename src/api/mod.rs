@@ -9,6 +9,7 @@ pub mod readsb;
 pub mod server;
 pub mod stream;
 mod tracks_cache;
+mod web;
 
 use crate::daemon::registry::TrackState;
 use crate::daemon::Shared;
@@ -18,7 +19,7 @@ use axum::body::{Body, Bytes};
 use axum::extract::rejection::{PathRejection, QueryRejection};
 use axum::extract::{FromRef, Path, Query, State};
 use axum::http::{header, HeaderValue, StatusCode};
-use axum::response::{Html, IntoResponse, Response};
+use axum::response::{IntoResponse, Response};
 use axum::routing::get;
 use axum::{Json, Router};
 use serde::{Deserialize, Serialize};
@@ -63,9 +64,6 @@ struct ErrorBody {
     error: String,
 }
 
-/// A live table of the tracks (the map page comes later).
-const INDEX_HTML: &str = include_str!("index.html");
-
 /// The API's state: the daemon's shared state and the cached `/api/v1/tracks` body.
 #[derive(Clone)]
 struct ApiState {
@@ -98,9 +96,10 @@ pub fn app(shared: Shared) -> Router {
         readsb_now: Arc::new(readsb::NowClock::default()),
         shared,
     };
+    let pages = web::routes(&state.shared.config);
     let tar1090_dir = state.shared.config.server.readsb.tar1090_dir.clone();
     let router = Router::new()
-        .route("/", get(|| async { Html(INDEX_HTML) }))
+        .merge(pages)
         .route("/api/v1/openapi.json", get(openapi::openapi_json))
         .route("/api/v1/tracks", get(tracks))
         .route("/api/v1/tracks/{icao}", get(track))

@@ -5,6 +5,8 @@ use crate::feed::Format;
 use serde::Deserialize;
 use std::path::{Path, PathBuf};
 
+mod map;
+pub use map::MapConfig;
 mod output;
 pub use output::{AsterixConfig, BBox, JsonlConfig, OutputConfig, SbsConfig, SystemRef};
 mod tracker;
@@ -126,6 +128,8 @@ pub struct Config {
     /// `[output.*]`: ASTERIX CAT062, SBS and JSON-lines outputs, each off when absent.
     #[serde(default)]
     pub output: OutputConfig,
+    /// `[map]`: the live map page at `/`.
+    pub map: MapConfig,
     /// `[history]`: the per-aircraft trails.
     pub history: HistoryConfig,
 }
@@ -488,6 +492,7 @@ impl Config {
         )?;
 
         self.output.validate()?;
+        self.map.validate()?;
         self.tracker.validate_tuning()
     }
 }

@@ -338,7 +338,11 @@ async fn stalled_clients_leave_ingest_unaffected_and_memory_bounded() {
     let rss_before = common::rss_bytes();
     let mut stalled = Vec::new();
     for _ in 0..200 {
-        let mut s = tokio::net::TcpStream::connect(d.addr).await.unwrap();
+        // A small receive window, so the kernel cannot absorb the whole stream for them
+        // (loopback buffers autotune to megabytes): their queues in the daemon must fill.
+        let socket = tokio::net::TcpSocket::new_v4().unwrap();
+        socket.set_recv_buffer_size(4096).unwrap();
+        let mut s = socket.connect(d.addr).await.unwrap();
         tokio::io::AsyncWriteExt::write_all(
             &mut s,
             b"GET /api/v1/stream HTTP/1.1\r\nHost: test\r\n\r\n",
@@ -370,8 +374,11 @@ async fn stalled_clients_leave_ingest_unaffected_and_memory_bounded() {
     let stream = &with["stream"];
     assert_eq!(stream["clients"], 200, "{stream}");
     assert_eq!(stream["clients_accepted"], 200, "{stream}");
-    // They fell behind (their buffers filled), and that was counted.
-    assert!(stream["lagged"].as_u64().unwrap() >= 100, "{stream}");
+    // They fell behind (their buffers filled), and that was counted. How many fill their
+    // queue within the replay depends on how fast the server drains into the kernel's
+    // socket buffers: 100-200 with a nice-19 server, 43 once connections were served on the
+    // two-lane server's nice-0 request lane (measured): at least a tenth, in any case.
+    assert!(stream["lagged"].as_u64().unwrap() >= 20, "{stream}");
     assert!(stream["lagged_updates"].as_u64().unwrap() > 0, "{stream}");
     // 200 clients x (64 KiB queue + a 16 KiB chunk + their aircraft maps) is under 20 MiB;
     // events for them piling up unbounded would be hundreds of MiB (about 0.5 MB/s each).

@@ -8,7 +8,8 @@
 #
 # Works on a stable toolchain: no sanitizer (safe Rust; libFuzzer still catches panics,
 # aborts, timeouts and runaway memory), debug assertions and overflow checks on (-a).
-# Needs `cargo install cargo-fuzz --locked`. Seeds go to fuzz/seeds/<target>, what the
+# Needs `cargo install cargo-fuzz --locked`. Seeds (cut from the fixtures, plus the inputs of
+# past findings in fuzz/regressions/<target>) go to fuzz/seeds/<target>, what the
 # fuzzer learns to fuzz/corpus/<target> (both ignored by git and kept between runs).
 # FUZZ_ARGS adds libFuzzer options, e.g. FUZZ_ARGS="-jobs=2 -workers=2".
 set -euo pipefail
@@ -70,6 +71,13 @@ for f in "$WORK"/beast-large.*; do
     seed pipeline $(((n % 12) << 4)) "beast-$n" < "$f"
     seed pipeline $(((n % 12) << 4 | 8)) "beast-fixed-$n" < "$f"
 done
+# Synthetic DF17 records (selector bits 0-2 = 5: 8 bytes a report, all from few addresses):
+# any bytes will do as a start; the Beast pieces serve.
+for f in "$WORK"/beast-small.*; do
+    n=$((n + 1))
+    seed pipeline $((5 | (n % 12) << 4)) "records-$n" < "$f"
+    seed decode_cpr $((5 | 0x30)) "records-$n" < "$f"
+done
 for f in "$WORK"/avr.* "$WORK"/avr-mid.*; do
     n=$((n + 1))
     seed feed_avr $((n % 7)) "avr-$n" < "$f"
@@ -106,8 +114,10 @@ cp config/default.toml "$SEEDS/config/default.toml"
 csplit -s -z -f "$SEEDS/config/default-" config/default.toml '/^\[/' '{*}'
 for f in "$FX"/scenarios/*.toml; do cp "$f" "$SEEDS/config/scenario-$(basename "$f")"; done
 
+# Every input that once crashed a target (fuzz/regressions/<target>/, committed) runs first.
 for t in "${ALL_TARGETS[@]}"; do
     mkdir -p "fuzz/corpus/$t"
+    if [ -d "fuzz/regressions/$t" ]; then cp fuzz/regressions/"$t"/* "$SEEDS/$t/"; fi
 done
 echo "fuzz: seeds $(du -sh "$SEEDS" | cut -f1) ($(find "$SEEDS" -type f | wc -l) files)" >&2
 

@@ -1,7 +1,7 @@
 //! The decoder (`src/decode/`: CRC, downlink formats, ME fields) and CPR (`src/decode/cpr.rs`).
 //!
 //! Input: one selector byte, then a stream in the format it names. Selector bits 0-2: format
-//! (Beast, AVR, CSV, ISO, JSON lines; 5-7 Beast), bit 3: write a correct parity into every
+//! (Beast, AVR, CSV, ISO, JSON lines; 5-7 synthetic DF17 records), bit 3: write a correct parity into every
 //! frame (so mutations reach the decoder), bit 4: single-bit CRC repair, bit 5: a receiver
 //! position for surface decoding, bits 6-7: the recent-address window.
 //!
@@ -20,7 +20,7 @@ use adsb_tracker::decode::cpr::{
 use adsb_tracker::decode::{Cpr, Decoded, Decoder, DecoderConfig, Icao, Message, Skip};
 use adsb_tracker::feed::RawFrame;
 use adsb_tracker::sim::encode::cpr_encode;
-use adsb_tracker_fuzz::{format_of, run_parser, split_selector, CrcFixer};
+use adsb_tracker_fuzz::{frames_of, split_selector, CrcFixer};
 use libfuzzer_sys::fuzz_target;
 use std::collections::HashMap;
 
@@ -171,7 +171,6 @@ fn check_round_trip(lat: f64, lon: f64, offset: u8) {
 
 fuzz_target!(|data: &[u8]| {
     let (selector, stream) = split_selector(data);
-    let format = format_of(selector);
     let fix_crc = selector & 0x08 != 0;
     let cfg = DecoderConfig {
         fix_single_bit: selector & 0x10 != 0,
@@ -179,12 +178,12 @@ fuzz_target!(|data: &[u8]| {
     };
     let receiver = (selector & 0x20 != 0).then_some(RECEIVER);
 
-    let run = run_parser(format, &[stream]);
+    let frames = frames_of(selector, stream);
     let mut decoder = Decoder::new(cfg);
     let mut fixer = CrcFixer::default();
     let mut cpr: HashMap<Icao, (CprDecoder, u64)> = HashMap::new();
     let mut es_decoded = 0u64;
-    for frame in &run.frames {
+    for frame in &frames {
         let frame: RawFrame = if fix_crc { fixer.fix(frame) } else { *frame };
         let result = decoder.decode(&frame);
         let bytes = frame.bytes();
@@ -262,7 +261,7 @@ fuzz_target!(|data: &[u8]| {
 
     // Every frame counted once, by reason and by DF.
     let s = decoder.stats();
-    assert_eq!(s.frames, run.frames.len() as u64);
+    assert_eq!(s.frames, frames.len() as u64);
     let skipped = s.mode_ac
         + s.wrong_length
         + s.crc_rejected

@@ -3,14 +3,14 @@
 //! predictions and its API view: `src/daemon/aircraft.rs`, `src/track/`).
 //!
 //! Input: one selector byte, then a stream. Selector bits 0-2: format (Beast, AVR, CSV, ISO,
-//! JSON lines; 5-7 Beast), bit 3: write a correct parity into every frame (so mutated
-//! positions and velocities reach the trackers), bits 4-7: the tracker (every algorithm the
-//! daemon can run). Checks: every published value finite and in range (no NaN leaves the
+//! JSON lines; 5-7 synthetic DF17 records, `adsb_tracker_fuzz::synthetic_frames`), bit 3:
+//! write a correct parity into every frame (so mutated positions and velocities reach the
+//! trackers), bits 4-7: the tracker (every algorithm the daemon can run). Checks: every published value finite and in range (no NaN leaves the
 //! daemon), an update always leaves an estimate, counters agree.
 #![no_main]
 
 use adsb_tracker::config::{Config, ALGORITHMS};
-use adsb_tracker_fuzz::{format_of, run_parser, run_pipeline, split_selector};
+use adsb_tracker_fuzz::{frames_of, run_pipeline, split_selector};
 use libfuzzer_sys::fuzz_target;
 use std::sync::OnceLock;
 
@@ -37,6 +37,5 @@ fuzz_target!(|data: &[u8]| {
     let Some(config) = config(usize::from(selector >> 4)) else {
         return;
     };
-    let run = run_parser(format_of(selector), &[stream]);
-    run_pipeline(config, &run.frames, selector & 0x08 != 0);
+    run_pipeline(config, &frames_of(selector, stream), selector & 0x08 != 0);
 });

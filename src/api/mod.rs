@@ -3,17 +3,18 @@
 //! Errors are `{"error": "..."}` with a 4xx status: 400 for malformed input, 404 for an unknown
 //! aircraft or endpoint.
 
+mod fair;
 pub mod openapi;
 pub mod readsb;
 pub mod server;
 pub mod stream;
+mod tracks_cache;
 mod web;
 
 use crate::daemon::registry::TrackState;
 use crate::daemon::Shared;
 use crate::decode::Icao;
 use crate::track::FlightMode;
-use arc_swap::ArcSwapOption;
 use axum::body::{Body, Bytes};
 use axum::extract::rejection::{PathRejection, QueryRejection};
 use axum::extract::{FromRef, Path, Query, State};
@@ -23,7 +24,8 @@ use axum::routing::get;
 use axum::{Json, Router};
 use serde::{Deserialize, Serialize};
 use std::sync::Arc;
-use std::time::{Duration, Instant};
+use std::time::Duration;
+use tracks_cache::{accepts_gzip, not_modified, tracks_body, TracksCache};
 
 /// The one error type of the API.
 #[derive(Debug, thiserror::Error)]
@@ -87,9 +89,10 @@ pub fn app(shared: Shared) -> Router {
     let request_timeout =
         Duration::try_from_secs_f64(server.request_timeout_s).unwrap_or(Duration::from_secs(10));
     let state = ApiState {
-        tracks: Arc::new(TracksCache::new(Duration::from_millis(
-            server.tracks_cache_ms,
-        ))),
+        tracks: Arc::new(TracksCache::new(
+            Duration::from_millis(server.tracks_cache_ms),
+            server.tracks_gzip_level,
+        )),
         readsb_now: Arc::new(readsb::NowClock::default()),
         shared,
     };
@@ -172,139 +175,28 @@ async fn json_errors(response: Response) -> Response {
     Response::from_parts(parts, Body::from(body))
 }
 
-/// Every track as `/api/v1/tracks` serves it, built once for many readers.
-struct CachedTracks {
-    /// [`crate::daemon::registry::Registry::generation`] when it was read.
-    generation: u64,
-    built: Instant,
-    /// Feed time when it was read, s.
-    time: f64,
-    tracks: Vec<TrackState>,
-    /// The unfiltered response body.
-    body: Bytes,
-}
-
-/// The last [`CachedTracks`]. It is current while the registry has not changed since; a
-/// changed registry is still served from it for `max_age` (`server.tracks_cache_ms`), so
-/// under many readers one serialisation (~5 ms and 1.7 MB for 1,000 tracks) serves them all
-/// and each open response shares the one body instead of holding its own copy.
-struct TracksCache {
-    max_age: Duration,
-    current: ArcSwapOption<CachedTracks>,
-    /// One rebuild at a time; the others wait for it and take its result.
-    rebuilding: tokio::sync::Mutex<()>,
-}
-
-impl TracksCache {
-    fn new(max_age: Duration) -> Self {
-        Self {
-            max_age,
-            current: ArcSwapOption::empty(),
-            rebuilding: tokio::sync::Mutex::new(()),
-        }
-    }
-
-    fn fresh(&self, shared: &Shared) -> Option<Arc<CachedTracks>> {
-        let c = self.current.load_full()?;
-        (c.generation == shared.registry.generation() || c.built.elapsed() < self.max_age)
-            .then_some(c)
-    }
-
-    /// The cached tracks, rebuilt (off the server's threads) if stale.
-    async fn get(&self, shared: &Shared) -> Result<Arc<CachedTracks>, ApiError> {
-        if let Some(c) = self.fresh(shared) {
-            return Ok(c);
-        }
-        let _one = self.rebuilding.lock().await;
-        if let Some(c) = self.fresh(shared) {
-            return Ok(c);
-        }
-        let reader = shared.clone();
-        let built = tokio::task::spawn_blocking(move || {
-            let generation = reader.registry.generation();
-            let time = reader.stats.feed_time_s();
-            let tracks = reader.registry.all();
-            let body = tracks_body(time, &tracks);
-            CachedTracks {
-                generation,
-                built: Instant::now(),
-                time,
-                tracks,
-                body,
-            }
-        })
-        .await
-        .map_err(|e| ApiError::Unavailable(format!("building the track list: {e}")))?;
-        let built = Arc::new(built);
-        self.current.store(Some(built.clone()));
-        Ok(built)
-    }
-}
-
-/// `GET /api/v1/tracks` body.
-#[derive(Serialize)]
-struct TracksBody<'a> {
-    /// Feed time of the newest frame, s.
-    time: f64,
-    tracks: Vec<&'a TrackState>,
-}
-
-/// `{"time": ..., "tracks": [...]}` for these tracks.
-fn tracks_body<'a>(time: f64, tracks: impl IntoIterator<Item = &'a TrackState>) -> Bytes {
-    let body = TracksBody {
-        time,
-        tracks: tracks.into_iter().collect(),
+/// A JSON body already serialised; `gzip` when it is gzip-coded. A large one is sent in
+/// slices on the server's bulk lane ([`fair`]).
+fn json_sliced(body: Bytes, gzip: bool) -> Response {
+    let body = if body.len() > fair::SLICE_BYTES {
+        Body::new(fair::Sliced::new(body))
+    } else {
+        Body::from(body)
     };
-    // Serialising plain numbers and strings into memory cannot fail.
-    Bytes::from(serde_json::to_vec(&body).unwrap_or_default())
-}
-
-/// Bytes of a large body handed to hyper at a time. hyper asks for the next slice only when
-/// its write buffer has room and yields after a few writes, so a connection task writes at
-/// most a few slices per turn: hundreds of clients downloading the track list take turns
-/// in small steps, and a small request (`/healthz`) waits for a turn of each at most.
-const SLICE_BYTES: usize = 16 * 1024;
-
-/// A shared, already serialised body sent in [`SLICE_BYTES`] slices (zero-copy).
-struct Sliced {
-    rest: Bytes,
-}
-
-impl http_body::Body for Sliced {
-    type Data = Bytes;
-    type Error = std::convert::Infallible;
-
-    fn poll_frame(
-        mut self: std::pin::Pin<&mut Self>,
-        _cx: &mut std::task::Context<'_>,
-    ) -> std::task::Poll<Option<Result<http_body::Frame<Bytes>, Self::Error>>> {
-        if self.rest.is_empty() {
-            return std::task::Poll::Ready(None);
-        }
-        let n = self.rest.len().min(SLICE_BYTES);
-        let slice = self.rest.split_to(n);
-        std::task::Poll::Ready(Some(Ok(http_body::Frame::data(slice))))
-    }
-
-    fn is_end_stream(&self) -> bool {
-        self.rest.is_empty()
-    }
-
-    fn size_hint(&self) -> http_body::SizeHint {
-        http_body::SizeHint::with_exact(self.rest.len() as u64)
-    }
-}
-
-/// A JSON body already serialised, sent in slices.
-fn json_sliced(body: Bytes) -> Response {
-    (
+    let mut response = (
         [(
             header::CONTENT_TYPE,
             HeaderValue::from_static("application/json"),
         )],
-        Body::new(Sliced { rest: body }),
+        body,
     )
-        .into_response()
+        .into_response();
+    if gzip {
+        response
+            .headers_mut()
+            .insert(header::CONTENT_ENCODING, HeaderValue::from_static("gzip"));
+    }
+    response
 }
 
 /// `GET /api/v1/tracks` query.
@@ -365,18 +257,22 @@ impl BBox {
 }
 
 /// Every track, or those in `bbox` and of the `mode`s asked, with the feed time. Served
-/// from [`TracksCache`]; a filtered list is serialised from the cached tracks.
+/// from [`TracksCache`]: the full list as cached, gzip-coded for a client that accepts it;
+/// a filtered list is serialised from the cached tracks. `ETag` names the cache's
+/// generation, and `If-None-Match` with it gets a 304.
 #[utoipa::path(get, path = "/api/v1/tracks", tag = "tracks",
     params(
         ("bbox" = Option<String>, Query, description = "south,west,north,east in degrees (west > east crosses the antimeridian)"),
         ("mode" = Option<String>, Query, description = "comma-separated flight-mode labels: CV, CA, CT, CH, CHCA"),
     ),
     responses(
-        (status = 200, description = "The tracks with an estimate", body = openapi::Tracks),
+        (status = 200, description = "The tracks with an estimate (gzip-coded when the client accepts it; `ETag` names the list's generation)", body = openapi::Tracks),
+        (status = 304, description = "Not modified: `If-None-Match` named the current generation"),
         (status = 400, description = "A malformed or unknown parameter", body = ErrorBody),
     ))]
 async fn tracks(
     State(api): State<ApiState>,
+    request_headers: axum::http::HeaderMap,
     query: Result<Query<TracksQuery>, QueryRejection>,
 ) -> Result<Response, ApiError> {
     let Query(q) = query.map_err(|e| ApiError::BadRequest(e.body_text()))?;
@@ -395,16 +291,33 @@ async fn tracks(
                 .collect()
         })
         .transpose()?;
-    let cached = api.tracks.get(&api.shared).await?;
-    if bbox.is_none() && modes.is_none() {
-        return Ok(json_sliced(cached.body.clone()));
+    let filtered = bbox.is_some() || modes.is_some();
+    let gzip_ok = !filtered && accepts_gzip(&request_headers);
+    let cached = api.tracks.get(&api.shared, gzip_ok).await?;
+    let (body, gzip, etag) = match (&cached.gzip, gzip_ok) {
+        (Some(z), true) => (Some(z.clone()), true, cached.gzip_etag()),
+        _ => (None, false, cached.etag()),
+    };
+    let mut response = if not_modified(&request_headers, &etag) {
+        StatusCode::NOT_MODIFIED.into_response()
+    } else if !filtered {
+        json_sliced(body.unwrap_or_else(|| cached.body.clone()), gzip)
+    } else {
+        let selected = cached
+            .tracks
+            .iter()
+            .filter(|t| bbox.is_none_or(|b| b.contains(t.lat, t.lon)))
+            .filter(|t| modes.as_ref().is_none_or(|m| m.contains(&t.mode)));
+        json_sliced(tracks_body(cached.time, selected), false)
+    };
+    let headers = response.headers_mut();
+    headers.insert(header::ETAG, etag);
+    // A cache may keep it, and must ask (If-None-Match) before reusing it.
+    headers.insert(header::CACHE_CONTROL, HeaderValue::from_static("no-cache"));
+    if !filtered {
+        headers.insert(header::VARY, HeaderValue::from_static("accept-encoding"));
     }
-    let selected = cached
-        .tracks
-        .iter()
-        .filter(|t| bbox.is_none_or(|b| b.contains(t.lat, t.lon)))
-        .filter(|t| modes.as_ref().is_none_or(|m| m.contains(&t.mode)));
-    Ok(json_sliced(tracks_body(cached.time, selected)))
+    Ok(response)
 }
 
 /// The `{icao}` of a path: a 400 `{"error"}` for anything but six hex digits, bad
@@ -415,7 +328,7 @@ fn icao_of(path: Result<Path<String>, PathRejection>) -> Result<Icao, ApiError> 
 }
 
 #[utoipa::path(get, path = "/api/v1/tracks/{icao}", tag = "tracks",
-    params(("icao" = String, Path, description = "ICAO address, 6 hex digits")),
+    params(("icao" = String, Path, description = "ICAO address, 6 hex digits", pattern = "^[0-9a-fA-F]{6}$")),
     responses(
         (status = 200, description = "The aircraft's track", body = crate::daemon::registry::TrackState),
         (status = 400, description = "Not 6 hex digits", body = ErrorBody),
@@ -446,7 +359,7 @@ struct PredictionBody {
 
 /// Positions predicted by the current mode's model at the configured horizons.
 #[utoipa::path(get, path = "/api/v1/tracks/{icao}/prediction", tag = "tracks",
-    params(("icao" = String, Path, description = "ICAO address, 6 hex digits")),
+    params(("icao" = String, Path, description = "ICAO address, 6 hex digits", pattern = "^[0-9a-fA-F]{6}$")),
     responses(
         (status = 200, description = "Predicted positions", body = PredictionBody),
         (status = 400, description = "Not 6 hex digits", body = ErrorBody),
@@ -481,7 +394,7 @@ struct HistoryBody {
 
 /// The aircraft's recent trail of estimated positions (`[history]`), oldest first.
 #[utoipa::path(get, path = "/api/v1/tracks/{icao}/history", tag = "tracks",
-    params(("icao" = String, Path, description = "ICAO address, 6 hex digits")),
+    params(("icao" = String, Path, description = "ICAO address, 6 hex digits", pattern = "^[0-9a-fA-F]{6}$")),
     responses(
         (status = 200, description = "The trail, oldest first", body = HistoryBody),
         (status = 400, description = "Not 6 hex digits", body = ErrorBody),

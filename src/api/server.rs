@@ -1,9 +1,13 @@
 //! The HTTP server: hyper's HTTP/1 connections around the API's router, bounded in every
 //! dimension a client controls, on a runtime of its own.
 //!
-//! - **Its own threads.** The server runs on a tokio runtime apart from the pipeline's
-//!   (`server.threads` workers), so however many clients it serves, the aircraft tasks never
-//!   wait behind a response: ingest keeps its pace.
+//! - **Its own threads, in two lanes.** The server runs on threads apart from the
+//!   pipeline's, so however many clients it serves, the aircraft tasks never wait behind a
+//!   response: ingest keeps its pace. One thread (the request lane, at
+//!   `server.request_nice`) accepts connections, reads requests and answers them; the
+//!   sending of large bodies and the building of the track list happen on the bulk lane
+//!   (`server.threads` threads at `server.nice`, lowest priority by default), so they yield
+//!   the CPU to ingest, and a small request never queues behind them (see [`super::fair`]).
 //! - **Time.** A request head must arrive within `server.header_read_timeout_s` (hyper's
 //!   timer, which also runs while a kept-alive connection waits for its next request: the
 //!   idle timeout); a handler must answer within `server.request_timeout_s` (tower-http); a
@@ -68,6 +72,7 @@ pub struct Limits {
     pub shutdown_grace: Duration,
     pub threads: usize,
     pub nice: i32,
+    pub request_nice: i32,
 }
 
 impl Limits {
@@ -86,6 +91,7 @@ impl Limits {
             shutdown_grace: secs(c.shutdown_grace_s, 5),
             threads: c.threads.clamp(1, 64),
             nice: c.nice.clamp(0, 19),
+            request_nice: c.request_nice.clamp(0, 19),
         }
     }
 }
@@ -113,8 +119,8 @@ impl ServerHandle {
     }
 }
 
-/// Starts the API on `listener`, on a runtime of its own with `server.threads` workers,
-/// until `shutdown` is cancelled.
+/// Starts the API on `listener`, on runtimes of its own (the request lane's one thread and
+/// the bulk lane's `server.threads`), until `shutdown` is cancelled.
 pub fn spawn(
     listener: TcpListener,
     shared: Shared,
@@ -123,24 +129,36 @@ pub fn spawn(
     let limits = Limits::from_config(&shared.config.server);
     // The listener moves to the server's runtime (its registration belongs to the caller's).
     let listener = listener.into_std()?;
-    let runtime = tokio::runtime::Builder::new_multi_thread()
+    let bulk = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(limits.threads)
-        .thread_name("adsb-http")
+        .thread_name("adsb-http-bulk")
         .on_thread_start(move || lower_priority(limits.nice))
+        .enable_all()
+        .build()?;
+    let bulk_lane = bulk.handle().clone();
+    let requests = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(1)
+        .thread_name("adsb-http")
+        .on_thread_start(move || {
+            lower_priority(limits.request_nice);
+            super::fair::set_bulk_lane(bulk_lane.clone());
+        })
         .enable_all()
         .build()?;
     let (tx, done) = tokio::sync::oneshot::channel();
     let thread = std::thread::Builder::new()
         .name("adsb-http-main".into())
         .spawn(move || {
-            lower_priority(limits.nice);
-            let result = runtime.block_on(async move {
+            lower_priority(limits.request_nice);
+            let bulk_lane = bulk.handle().clone();
+            let result = requests.block_on(async move {
                 let listener = TcpListener::from_std(listener)?;
-                serve(listener, shared, limits, shutdown).await;
+                serve(listener, shared, limits, shutdown, bulk_lane).await;
                 Ok(())
             });
             // Connections cut at the deadline may leave tasks behind: don't wait for them.
-            runtime.shutdown_background();
+            requests.shutdown_background();
+            bulk.shutdown_background();
             let _ = tx.send(result);
         })?;
     Ok(ServerHandle {
@@ -167,14 +185,21 @@ fn lower_priority(nice: i32) {
         if !ok {
             tracing::debug!(
                 error = %io::Error::last_os_error(),
-                "could not lower the HTTP threads' priority (server.nice)"
+                "could not lower the HTTP threads' priority (server.nice, server.request_nice)"
             );
         }
     }
 }
 
-/// The accept loop, then the graceful shutdown with its deadline.
-pub async fn serve(listener: TcpListener, shared: Shared, limits: Limits, stop: CancellationToken) {
+/// The accept loop, then the graceful shutdown with its deadline. Connections are served on
+/// the current runtime (the request lane) and send their large bodies on `bulk`.
+pub async fn serve(
+    listener: TcpListener,
+    shared: Shared,
+    limits: Limits,
+    stop: CancellationToken,
+    bulk: tokio::runtime::Handle,
+) {
     let router = app(shared.clone());
     let stats = shared.stats.http.clone();
     let permits = Arc::new(Semaphore::new(limits.max_connections));
@@ -230,10 +255,12 @@ pub async fn serve(listener: TcpListener, shared: Shared, limits: Limits, stop: 
         let io = guarded(stream, &limits);
         let service = per_connection(router.clone(), limits.max_requests_per_connection);
         let conn = builder.serve_connection(io, TowerToHyperService::new(service));
-        let conn = graceful.watch(conn);
+        let conn: super::fair::Connection<_> = Box::pin(graceful.watch(conn));
         let stats = stats.clone();
+        let bulk = bulk.clone();
         connections.spawn(async move {
-            if let Err(e) = conn.await {
+            // Large bodies go out on the bulk lane, a bounded share per poll: see `fair`.
+            if let Some(Err(e)) = super::fair::serve_connection(conn, &bulk).await {
                 if is_timeout(&e) {
                     stats.connections_timed_out.inc();
                 }

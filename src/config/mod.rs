@@ -171,10 +171,15 @@ pub struct ServerConfig {
     pub shutdown_grace_s: f64,
     /// Longest a cached `/api/v1/tracks` body is served, ms (0: never cached).
     pub tracks_cache_ms: u64,
+    /// gzip level of the cached `/api/v1/tracks` body for clients that accept gzip (0: none).
+    pub tracks_gzip_level: u32,
     /// Worker threads of the server's runtime.
     pub threads: usize,
-    /// Niceness added to the server's threads.
+    /// Niceness added to the server's bulk lane (sending large bodies, building them).
     pub nice: i32,
+    /// Niceness added to the server's request lane (accepting, reading requests, small
+    /// answers).
+    pub request_nice: i32,
     /// `[server.stream]`: the server-sent event stream.
     pub stream: StreamConfig,
     /// `[server.readsb]`: readsb's JSON and the tar1090 page.
@@ -341,8 +346,10 @@ impl Config {
         int_within("server.max_header_bytes", s.max_header_bytes, 8192, 1 << 20)?;
         seconds_within("server.shutdown_grace_s", s.shutdown_grace_s, 0.0, 600.0)?;
         int_within("server.tracks_cache_ms", s.tracks_cache_ms, 0, 10_000)?;
+        int_within("server.tracks_gzip_level", s.tracks_gzip_level, 0, 9)?;
         int_within("server.threads", s.threads, 1, 64)?;
         int_within("server.nice", s.nice, 0, 19)?;
+        int_within("server.request_nice", s.request_nice, 0, 19)?;
         s.stream.validate()?;
         s.readsb.validate()?;
         self.history.validate()?;
@@ -585,7 +592,9 @@ mod tests {
             ("[server]\nshutdown_grace_s = -1.0\n", "server.shutdown_grace_s"),
             ("[server]\nthreads = 0\n", "server.threads"),
             ("[server]\nnice = 20\n", "server.nice"),
+            ("[server]\nrequest_nice = -1\n", "server.request_nice"),
             ("[server]\ntracks_cache_ms = 99999999\n", "server.tracks_cache_ms"),
+            ("[server]\ntracks_gzip_level = 10\n", "server.tracks_gzip_level"),
             // Issue 12: the stream, the trails, readsb's view.
             ("[server.stream]\nmax_updates_per_s = 0.0\n", "server.stream.max_updates_per_s"),
             ("[server.stream]\nmax_updates_per_s = nan\n", "server.stream.max_updates_per_s"),

@@ -136,4 +136,41 @@ mod tests {
             );
         }
     }
+
+    /// Fuzz finding (target `pipeline`, synthetic records; issue 11 row 9): random airborne
+    /// positions, then a supersonic velocity. After four rejections the CPR decoder forgets
+    /// its last fix and accepts one 6,500 km from it 1 s later (its reset rule); the tracker
+    /// takes it as an ordinary report, its estimate ends up thousands of km below the
+    /// ellipsoid (finite in ENU), and the geodetic conversion on publication
+    /// (`ecef_to_geodetic`) gave `lat = NaN` for 8 of the 12 trackers. The jump and
+    /// non-finite resets (`track_resets_jump`, `track_resets_nonfinite`) now catch it.
+    #[test]
+    fn random_reports_never_publish_a_nan() {
+        let frames = [
+            frame(0.2, "8D4840D69395D748F285D3DA2E55"),
+            frame(0.4, "8D4840D6F8A6AD010A99B4E14D97"),
+            frame(0.6000000000000001, "8D4840D672EAEAF7902ECA0FD1D6"),
+            frame(0.8, "8D4840D6ADD365DCDEE618BAB995"),
+            frame(1.0, "8D4840D66C6174897590529105F2"),
+            frame(1.2, "8D4840D6669B4F3BC6D8A4118E7B"),
+            frame(1.4, "8D4840D6932A3494B0AAF046D88C"),
+            frame(1.5999999999999999, "8D4840D68A565F20DCDEE6A1918D"),
+            frame(4.0, "8D4840D69A6F20DCDEE618CF8678"),
+        ];
+        let config = Config::default_config().unwrap();
+        let mut bad = Vec::new();
+        for algorithm in ALGORITHMS {
+            let mut p = sync_pipeline(&config, algorithm);
+            for f in &frames {
+                let Some(s) = p.push(f).and_then(|u| u.state) else {
+                    continue;
+                };
+                let values = [s.lat, s.lon, s.alt_m, s.ve, s.vn, s.vu, s.pos_sigma_m];
+                if !values.iter().all(|v| v.is_finite()) {
+                    bad.push(format!("{algorithm} at t = {}: {values:?}", f.time_s));
+                }
+            }
+        }
+        assert!(bad.is_empty(), "non-finite states published: {bad:#?}");
+    }
 }

@@ -22,12 +22,16 @@
 //!   outliers. Their content is good (CRC-checked), only their stamp is not, so they are
 //!   released in their place, halfway between the frames around them (or at the current
 //!   time), counted in [`FeedClock::outliers`], and feed time never moved. (Before the stream
-//!   has any time there is none to give them: they are dropped, counted the same.) A frame far
+//!   has any time there is none to give them: they wait, counted the same, for the stream's
+//!   first confirmed time and take it.) A frame far
 //!   from both the candidate and the current time while the candidate waits is an outlier
 //!   too. The end of the stream confirms nothing: a candidate still waiting then is refuted
 //!   (or, if it is the stream's only time, taken).
 //! - A unix timestamp that is not finite, negative or past [`MAX_UNIX_S`] (year 2200) is no
-//!   time at all: the frame is dropped and counted in [`FeedClock::bad_timestamps`].
+//!   time at all: counted in [`FeedClock::bad_timestamps`], and the frame is untimed.
+//!
+//! No frame is ever dropped: every frame that goes in comes out, in its order, with a time
+//! (the fuzz targets `feed_beast` and `feed_lines` check it).
 //!
 //! Holding costs nothing on the ordinary path (one comparison), and at most
 //! [`MAX_HELD_FRAMES`] frames are ever held, in a buffer allocated once.
@@ -327,13 +331,22 @@ impl<S: Stamp> Track<S> {
     }
 
     /// A frame without a time of its own: the last time, or held behind a waiting candidate
-    /// so the order of frames is kept.
-    fn push_untimed(&mut self, frame: RawFrame, out: &mut Vec<RawFrame>, sh: &Shared) {
-        if self.cand.is_some() && self.held.len() < MAX_HELD_FRAMES {
-            self.held.push((None, frame));
-        } else {
-            frame_at(frame, sh.last_s, out);
+    /// so the order of frames is kept. When the buffer is full, the candidate is given up
+    /// (its frames are outliers, released at the current time) so the order still holds.
+    fn push_untimed(&mut self, frame: RawFrame, out: &mut Vec<RawFrame>, sh: &mut Shared) {
+        if self.cand.is_some() {
+            if self.held.len() < MAX_HELD_FRAMES {
+                self.held.push((None, frame));
+                return;
+            }
+            if let Some(c) = self.cand.take() {
+                sh.outliers += c.frames as u64;
+            }
+            for (_, held) in self.held.drain(..) {
+                frame_at(held, sh.last_s, out);
+            }
         }
+        frame_at(frame, sh.last_s, out);
     }
 
     fn start(&mut self, x: S, frame: RawFrame, needed: usize) {
@@ -367,11 +380,17 @@ impl<S: Stamp> Track<S> {
                 sh.resets += 1;
             }
         }
+        // Outliers held before the stream had a time (see `refute`) take its first time.
+        let mut lead_s = self.last.is_none().then(|| S::time_s(self.base, c.first));
         self.last = Some(c.last);
         for (stamp, frame) in self.held.drain(..) {
-            let t_s = match stamp {
-                Some(x) => sh.advance(S::time_s(self.base, x)),
-                None => sh.last_s,
+            let t_s = match (stamp, lead_s) {
+                (Some(x), _) => {
+                    lead_s = None;
+                    sh.advance(S::time_s(self.base, x))
+                }
+                (None, Some(first_s)) => sh.advance(first_s),
+                (None, None) => sh.last_s,
             };
             frame_at(frame, t_s, out);
         }
@@ -379,15 +398,19 @@ impl<S: Stamp> Track<S> {
 
     /// The stream did not confirm the candidate: its frames were outliers. Their content is
     /// good, so they are handed on in their place: halfway to `next_s` (the time of the
-    /// ordinary frame that refuted them, when there is one) or at the current time; if the
-    /// stream has no time yet, there is none to give them and they are dropped.
+    /// ordinary frame that refuted them, when there is one) or at the current time. If the
+    /// stream has no time yet, there is none to give them: they stay held, untimed, in front
+    /// of the next candidate, and take the stream's first time when one is confirmed (or the
+    /// current time, should they fill the buffer first).
     fn refute(&mut self, next_s: Option<f64>, out: &mut Vec<RawFrame>, sh: &mut Shared) {
         let Some(c) = self.cand.take() else {
             return;
         };
         sh.outliers += c.frames as u64;
-        if self.last.is_none() {
-            self.held.clear();
+        if self.last.is_none() && self.held.len() + REBASE_CONFIRM_FRAMES < MAX_HELD_FRAMES {
+            for (stamp, _) in &mut self.held {
+                *stamp = None;
+            }
             return;
         }
         let t_s = match next_s {
@@ -505,10 +528,12 @@ impl FeedClock {
 
     /// Times a frame stamped in unix seconds (a recording's timestamp) into `out` (now or
     /// later). A stamp that is not finite, is negative or is past [`MAX_UNIX_S`] is no time:
-    /// the frame is dropped and counted in [`bad_timestamps`](Self::bad_timestamps).
+    /// counted in [`bad_timestamps`](Self::bad_timestamps), and the frame (its content is
+    /// good) goes on untimed.
     pub fn push_seconds(&mut self, source_s: f64, frame: RawFrame, out: &mut Vec<RawFrame>) {
         if !(0.0..=MAX_UNIX_S).contains(&source_s) {
             self.bad_timestamps += 1;
+            self.push_untimed(frame, out);
             return;
         }
         self.seconds.push(source_s, frame, out, &mut self.sh);
@@ -530,9 +555,9 @@ impl FeedClock {
     /// time, after any frame held before it.
     pub fn push_untimed(&mut self, frame: RawFrame, out: &mut Vec<RawFrame>) {
         if self.ticks.cand.is_some() {
-            self.ticks.push_untimed(frame, out, &self.sh);
+            self.ticks.push_untimed(frame, out, &mut self.sh);
         } else {
-            self.seconds.push_untimed(frame, out, &self.sh);
+            self.seconds.push_untimed(frame, out, &mut self.sh);
         }
     }
 
@@ -575,13 +600,13 @@ impl FeedClock {
     }
 
     /// Frames whose stamp the stream did not confirm: handed on with the current time (or,
-    /// before the stream had one, dropped).
+    /// before the stream had one, with its first time).
     pub fn outliers(&self) -> u64 {
         self.sh.outliers
     }
 
-    /// Frames dropped because their unix stamp was not finite, negative or past
-    /// [`MAX_UNIX_S`].
+    /// Frames whose unix stamp was not finite, negative or past [`MAX_UNIX_S`]: handed on
+    /// untimed.
     pub fn bad_timestamps(&self) -> u64 {
         self.bad_timestamps
     }
@@ -780,14 +805,56 @@ mod tests {
     }
 
     #[test]
-    fn outlier_at_the_start_is_dropped() {
+    fn outlier_at_the_start_takes_the_first_time() {
         let mut r = Run::new();
         r.ticks(5_000 * S);
         for i in 0..4 {
             r.ticks((10 + i) * S);
         }
-        assert_eq!(r.got(), [(2, 10.0), (3, 11.0), (4, 12.0), (5, 13.0)]);
+        assert_eq!(
+            r.got(),
+            [(1, 10.0), (2, 10.0), (3, 11.0), (4, 12.0), (5, 13.0)]
+        );
         assert_eq!((r.clock.resets(), r.clock.outliers()), (0, 1));
+    }
+
+    /// Fuzz finding (targets `feed_beast`, `feed_lines`): a stream whose stamps never agree
+    /// lost the frames held before it had a time (uncounted when untimed frames were among
+    /// them). Every frame now comes out, in order, however the stamps go.
+    #[test]
+    fn random_stamps_lose_no_frame() {
+        let mut r = Run::new();
+        // A xorshift sequence of stamps all over the 48-bit range, with untimed frames mixed
+        // in: nothing confirms anything for long.
+        let mut x: u64 = 0x9E37_79B9_7F4A_7C15;
+        for i in 0..200u32 {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            if i % 5 == 3 {
+                r.untimed();
+            } else {
+                r.ticks(x % COUNTER_MODULUS);
+            }
+        }
+        r.flush();
+        let numbers: Vec<u8> = r.got().iter().map(|&(n, _)| n).collect();
+        let want: Vec<u8> = (1..=200u32).map(|n| n as u8).collect();
+        assert_eq!(numbers, want, "every frame, in order");
+        assert!(r.times().windows(2).all(|w| w[0] <= w[1]));
+        assert!(r.clock.outliers() > 0);
+
+        // Untimed frames past the buffer's room while the first time waits: the wait is
+        // given up rather than the order.
+        let mut r = Run::new();
+        r.ticks(5 * S);
+        for _ in 0..MAX_HELD_FRAMES + 3 {
+            r.untimed();
+        }
+        r.ticks(6 * S).flush();
+        let numbers: Vec<u8> = r.got().iter().map(|&(n, _)| n).collect();
+        let want: Vec<u8> = (1..=(MAX_HELD_FRAMES as u8 + 5)).collect();
+        assert_eq!(numbers, want);
     }
 
     #[test]
@@ -860,7 +927,6 @@ mod tests {
         // Far back, confirmed: rebase.
         r.secs(500.0).secs(500.5).secs(500.75).secs(501.0);
         assert_eq!(&r.times()[6..], [1_001.5, 1_002.0, 1_002.25, 1_002.5]);
-        // Not times at all: dropped and counted.
         for bad in [
             f64::NAN,
             f64::INFINITY,
@@ -871,11 +937,12 @@ mod tests {
         ] {
             r.secs(bad);
         }
-        assert_eq!(r.out.len(), 10);
+        // Not times at all: counted, and the frames go on untimed (the last time).
+        assert_eq!(&r.times()[10..], [1_002.5; 6]);
         assert_eq!(r.clock.bad_timestamps(), 6);
         // Far forward, confirmed: rebase.
         r.secs(1e9).secs(1e9 + 1.0).secs(1e9 + 1.5).secs(1e9 + 2.0);
-        assert_eq!(&r.times()[10..], [1_002.5, 1_003.5, 1_004.0, 1_004.5]);
+        assert_eq!(&r.times()[16..], [1_002.5, 1_003.5, 1_004.0, 1_004.5]);
         assert_eq!((r.clock.resets(), r.clock.outliers()), (2, 0));
     }
 

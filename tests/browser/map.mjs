@@ -189,7 +189,7 @@ try {
   result.moved = moved;
   check(moved > 0, `no aircraft moved on screen in 15 s (${Object.keys(before).length} airborne)`);
 
-  // Click an aircraft that has a callsign and stands apart (no other icon or label near),
+  // Click an aircraft that has a callsign and stands apart (no other icon or label over it),
   // as a user would: the mouse at its icon's centre. Before that, the pixel there must be
   // its mode's colour: the icon is really drawn where the page says.
   const listed = await api("api/v1/tracks");
@@ -213,8 +213,12 @@ try {
         if (!p || icao === m.selected()) continue;
         const [x, y] = p;
         if (x < 60 || y < 60 || x > box.width - 300 || y > box.height - 60) continue;
-        const alone = Object.entries(drawn).every(([o, [ox, oy]]) => o === icao || Math.hypot(ox - x, oy - y) > 90);
-        if (!alone) continue;
+        // No other icon within two click radii, and no other aircraft's label (drawn from
+        // 10 px right of its icon, 11 px above to 15 px below, up to ~90 px wide) over it.
+        const clear = Object.entries(drawn).every(
+          ([o, [ox, oy]]) => o === icao || (Math.hypot(ox - x, oy - y) > 24 && !(x - ox >= 4 && x - ox <= 100 && y - oy >= -17 && y - oy <= 21)),
+        );
+        if (!clear) continue;
         const px = ctx.getImageData(Math.round((box.left + x - cbox.left) * scale), Math.round((box.top + y - cbox.top) * scale), 1, 1).data;
         return { icao, x: box.left + x, y: box.top + y, pixel: [px[0], px[1], px[2], px[3]], mode: m.track(icao).mode };
       }

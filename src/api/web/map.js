@@ -208,7 +208,13 @@ class Aircraft {
   }
 
   extendTrail(t, lat, lon) {
-    const last = this.trailT.length ? this.trailT[this.trailT.length - 1] : -Infinity;
+    let last = this.trailT.length ? this.trailT[this.trailT.length - 1] : -Infinity;
+    // Feed time went back (a new time base): the old trail belongs to another time line.
+    if (fin(t) && t + 60 < last) {
+      this.trail = [];
+      this.trailT = [];
+      last = -Infinity;
+    }
     if (fin(t) && t - last >= TRAIL_STEP_S) {
       this.trail.push([lat, lon]);
       this.trailT.push(t);

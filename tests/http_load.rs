@@ -11,7 +11,7 @@ use adsb_tracker::daemon::Source;
 use adsb_tracker::decode::{Icao, VerticalRateSource};
 use adsb_tracker::feed::Format;
 use adsb_tracker::sim::encode::{airborne_position, airborne_velocity, VelocityReport};
-use common::{get_json, TestDaemon};
+use common::{beast, get_json, TestDaemon};
 use std::collections::BTreeMap;
 use std::io::Read;
 use std::net::SocketAddr;
@@ -186,21 +186,6 @@ const AIRCRAFT: u32 = 400;
 const FEED_S: f64 = 30.0;
 /// Frames a second the feed is sent at (about 5x real time): ingest lasts ~4 s.
 const FEED_RATE: f64 = 9_000.0;
-
-/// One Beast long frame at feed time `t_s` (12 MHz counter), 0x1a escaped.
-fn beast(t_s: f64, frame: &[u8; 14], out: &mut Vec<u8>) {
-    let ticks = (t_s * 12e6) as u64;
-    out.extend_from_slice(&[0x1a, b'3']);
-    let mut body = ticks.to_be_bytes()[2..].to_vec();
-    body.push(0x80);
-    body.extend_from_slice(frame);
-    for b in body {
-        out.push(b);
-        if b == 0x1a {
-            out.push(0x1a);
-        }
-    }
-}
 
 /// `AIRCRAFT` aircraft flying east for `FEED_S` s: a position every 0.5 s (even and odd
 /// alternating) and a velocity every second. Returns the frames, one Vec each.

@@ -14,7 +14,7 @@ use adsb_tracker::decode::Icao;
 use adsb_tracker::decode::VerticalRateSource;
 use adsb_tracker::feed::Format;
 use adsb_tracker::sim::encode::{airborne_position, airborne_velocity, VelocityReport};
-use common::{get_json, TestDaemon};
+use common::{beast, get_json, TestDaemon};
 use std::time::{Duration, Instant};
 use tokio::io::AsyncWriteExt;
 
@@ -24,21 +24,6 @@ const WAVE_AIRCRAFT: u32 = 250;
 const WAVE_S: f64 = 20.0;
 /// `tracker.retire_after_s` of the test: silent this long, an aircraft is retired.
 const RETIRE_S: f64 = 5.0;
-
-/// One Beast long frame at feed time `t_s` (12 MHz counter), 0x1a escaped.
-fn beast(t_s: f64, frame: &[u8; 14], out: &mut Vec<u8>) {
-    let ticks = (t_s * 12e6) as u64;
-    out.extend_from_slice(&[0x1a, b'3']);
-    let mut body = ticks.to_be_bytes()[2..].to_vec();
-    body.push(0x80);
-    body.extend_from_slice(frame);
-    for b in body {
-        out.push(b);
-        if b == 0x1a {
-            out.push(0x1a);
-        }
-    }
-}
 
 /// Wave `w`: `WAVE_AIRCRAFT` new addresses, each flying east from its own spot for
 /// `WAVE_S` s of feed time starting at `w * WAVE_S`, a position every 0.5 s (even and odd

@@ -209,51 +209,16 @@ struct TracksQuery {
     mode: Option<String>,
 }
 
-/// A latitude/longitude box; `west > east` crosses the antimeridian.
-#[derive(Clone, Copy, Debug, PartialEq)]
-struct BBox {
-    south: f64,
-    west: f64,
-    north: f64,
-    east: f64,
-}
-
-impl BBox {
-    fn parse(s: &str) -> Result<Self, ApiError> {
-        let bad = || {
+/// `/api/v1/tracks`' `bbox`: `south,west,north,east` in degrees (latitude first, unlike the
+/// stream's GeoJSON order); `west > east` crosses the antimeridian.
+fn parse_tracks_bbox(s: &str) -> Result<stream::LonLatBox, ApiError> {
+    stream::four_degrees(s)
+        .and_then(|[south, west, north, east]| stream::LonLatBox::new(west, south, east, north))
+        .ok_or_else(|| {
             ApiError::BadRequest(format!(
                 "bbox {s:?}: expected south,west,north,east in degrees"
             ))
-        };
-        let v: Vec<f64> = s
-            .split(',')
-            .map(|p| p.trim().parse::<f64>())
-            .collect::<Result<_, _>>()
-            .map_err(|_| bad())?;
-        let [south, west, north, east] = v[..] else {
-            return Err(bad());
-        };
-        let lat_ok = |x: f64| (-90.0..=90.0).contains(&x);
-        let lon_ok = |x: f64| (-180.0..=180.0).contains(&x);
-        if !(lat_ok(south) && lat_ok(north) && lon_ok(west) && lon_ok(east)) || south > north {
-            return Err(bad());
-        }
-        Ok(Self {
-            south,
-            west,
-            north,
-            east,
         })
-    }
-
-    fn contains(&self, lat: f64, lon: f64) -> bool {
-        let lon_in = if self.west <= self.east {
-            (self.west..=self.east).contains(&lon)
-        } else {
-            lon >= self.west || lon <= self.east
-        };
-        (self.south..=self.north).contains(&lat) && lon_in
-    }
 }
 
 /// Every track, or those in `bbox` and of the `mode`s asked, with the feed time. Served
@@ -276,7 +241,7 @@ async fn tracks(
     query: Result<Query<TracksQuery>, QueryRejection>,
 ) -> Result<Response, ApiError> {
     let Query(q) = query.map_err(|e| ApiError::BadRequest(e.body_text()))?;
-    let bbox = q.bbox.as_deref().map(BBox::parse).transpose()?;
+    let bbox = q.bbox.as_deref().map(parse_tracks_bbox).transpose()?;
     let modes: Option<Vec<&'static str>> = q
         .mode
         .as_deref()
@@ -482,12 +447,12 @@ mod tests {
 
     #[test]
     fn bbox_parses_and_contains() {
-        let b = BBox::parse("43.0,1.0,50.0,3.0").unwrap();
+        let b = parse_tracks_bbox("43.0,1.0,50.0,3.0").unwrap();
         assert!(b.contains(49.0, 2.5));
         assert!(!b.contains(49.0, 3.5));
         assert!(!b.contains(42.9, 2.0));
         // Across the antimeridian.
-        let b = BBox::parse("-10,170,10,-170").unwrap();
+        let b = parse_tracks_bbox("-10,170,10,-170").unwrap();
         assert!(b.contains(0.0, 175.0) && b.contains(0.0, -175.0) && !b.contains(0.0, 0.0));
     }
 
@@ -502,7 +467,7 @@ mod tests {
             "0,0,95,1",
             "0,-190,1,1",
         ] {
-            assert!(BBox::parse(s).is_err(), "{s:?} accepted");
+            assert!(parse_tracks_bbox(s).is_err(), "{s:?} accepted");
         }
     }
 }

@@ -75,6 +75,16 @@ pub(super) struct StreamQuery {
     mode: Option<String>,
 }
 
+/// Four comma-separated numbers (both `bbox` forms of the API), or `None`.
+pub fn four_degrees(s: &str) -> Option<[f64; 4]> {
+    let v: Vec<f64> = s
+        .split(',')
+        .map(|p| p.trim().parse::<f64>())
+        .collect::<Result<_, _>>()
+        .ok()?;
+    v.try_into().ok()
+}
+
 /// A longitude/latitude box, GeoJSON's order; `min_lon > max_lon` crosses the antimeridian.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct LonLatBox {
@@ -85,33 +95,34 @@ pub struct LonLatBox {
 }
 
 impl LonLatBox {
+    /// `minLon,minLat,maxLon,maxLat` in degrees (the stream's `bbox`).
     pub fn parse(s: &str) -> Result<Self, ApiError> {
-        let bad = || {
-            ApiError::BadRequest(format!(
-                "bbox {s:?}: expected minLon,minLat,maxLon,maxLat in degrees"
-            ))
-        };
-        let v: Vec<f64> = s
-            .split(',')
-            .map(|p| p.trim().parse::<f64>())
-            .collect::<Result<_, _>>()
-            .map_err(|_| bad())?;
-        let [min_lon, min_lat, max_lon, max_lat] = v[..] else {
-            return Err(bad());
-        };
+        four_degrees(s)
+            .and_then(|[min_lon, min_lat, max_lon, max_lat]| {
+                Self::new(min_lon, min_lat, max_lon, max_lat)
+            })
+            .ok_or_else(|| {
+                ApiError::BadRequest(format!(
+                    "bbox {s:?}: expected minLon,minLat,maxLon,maxLat in degrees"
+                ))
+            })
+    }
+
+    /// The box, if its corners are on the globe and its south is not north of its north.
+    pub fn new(min_lon: f64, min_lat: f64, max_lon: f64, max_lat: f64) -> Option<Self> {
         let lat_ok = |x: f64| (-90.0..=90.0).contains(&x);
         let lon_ok = |x: f64| (-180.0..=180.0).contains(&x);
-        if !(lat_ok(min_lat) && lat_ok(max_lat) && lon_ok(min_lon) && lon_ok(max_lon))
-            || min_lat > max_lat
-        {
-            return Err(bad());
-        }
-        Ok(Self {
-            min_lon,
-            min_lat,
-            max_lon,
-            max_lat,
-        })
+        (lat_ok(min_lat)
+            && lat_ok(max_lat)
+            && lon_ok(min_lon)
+            && lon_ok(max_lon)
+            && min_lat <= max_lat)
+            .then_some(Self {
+                min_lon,
+                min_lat,
+                max_lon,
+                max_lat,
+            })
     }
 
     pub fn contains(&self, lat: f64, lon: f64) -> bool {

@@ -312,3 +312,18 @@ pub fn rss_bytes() -> u64 {
         .unwrap_or(0);
     pages * 4096
 }
+
+/// One Beast long frame at feed time `t_s` (12 MHz counter), 0x1a escaped.
+pub fn beast(t_s: f64, frame: &[u8; 14], out: &mut Vec<u8>) {
+    let ticks = (t_s * 12e6) as u64;
+    out.extend_from_slice(&[0x1a, b'3']);
+    let mut body = ticks.to_be_bytes()[2..].to_vec();
+    body.push(0x80);
+    body.extend_from_slice(frame);
+    for b in body {
+        out.push(b);
+        if b == 0x1a {
+            out.push(0x1a);
+        }
+    }
+}

@@ -380,11 +380,11 @@ async fn stalled_clients_leave_ingest_unaffected_and_memory_bounded() {
     let stream = &with["stream"];
     assert_eq!(stream["clients"], 200, "{stream}");
     assert_eq!(stream["clients_accepted"], 200, "{stream}");
-    // They fell behind (their buffers filled), and that was counted. How many fill their
-    // queue within the replay depends on how fast the server drains into the kernel's
-    // socket buffers: 100-200 with a nice-19 server, 43 once connections were served on the
-    // two-lane server's nice-0 request lane (measured): at least a tenth, in any case.
-    assert!(stream["lagged"].as_u64().unwrap() >= 20, "{stream}");
+    // They fell behind (their queues filled), and that was counted. How many fill their
+    // queue within the replay depends on how much the kernel's socket buffers absorb first
+    // (loopback buffers autotune; 2 to 59 of the 200 measured with the two-lane server,
+    // 100-200 with the old nice-19 one): at least one, with the updates it missed counted.
+    assert!(stream["lagged"].as_u64().unwrap() >= 1, "{stream}");
     assert!(stream["lagged_updates"].as_u64().unwrap() > 0, "{stream}");
     // 200 clients x (64 KiB queue + a 16 KiB chunk + their aircraft maps) is under 20 MiB;
     // events for them piling up unbounded would be hundreds of MiB (about 0.5 MB/s each).

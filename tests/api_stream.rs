@@ -383,9 +383,9 @@ async fn stalled_clients_leave_ingest_unaffected_and_memory_bounded() {
     // They fell behind (their queues filled), and that was counted. How many fill their
     // queue within the replay depends on how much the kernel's socket buffers absorb first
     // (loopback buffers autotune; 2 to 59 of the 200 measured with the two-lane server,
-    // 100-200 with the old nice-19 one): at least one, with the updates it missed counted.
+    // 100-200 with the old nice-19 one): at least one. (`lagged_updates`, the updates
+    // coalesced while a client was blocked, can be 0 when the replay ends soon after.)
     assert!(stream["lagged"].as_u64().unwrap() >= 1, "{stream}");
-    assert!(stream["lagged_updates"].as_u64().unwrap() > 0, "{stream}");
     // 200 clients x (64 KiB queue + a 16 KiB chunk + their aircraft maps) is under 20 MiB;
     // events for them piling up unbounded would be hundreds of MiB (about 0.5 MB/s each).
     let grown_mib = (peak_rss.saturating_sub(rss_before)) as f64 / (1 << 20) as f64;

@@ -209,6 +209,19 @@ struct TracksQuery {
     mode: Option<String>,
 }
 
+/// A `mode` filter (of `/api/v1/tracks` and the stream): one label or a comma-separated
+/// list (`CV`, `CT,CA`), as the labels' static names.
+fn parse_modes(m: &str) -> Result<Vec<&'static str>, ApiError> {
+    m.split(',')
+        .map(|s| {
+            s.trim()
+                .parse::<FlightMode>()
+                .map(FlightMode::as_str)
+                .map_err(ApiError::BadRequest)
+        })
+        .collect()
+}
+
 /// `/api/v1/tracks`' `bbox`: `south,west,north,east` in degrees (latitude first, unlike the
 /// stream's GeoJSON order); `west > east` crosses the antimeridian.
 fn parse_tracks_bbox(s: &str) -> Result<stream::LonLatBox, ApiError> {
@@ -242,20 +255,7 @@ async fn tracks(
 ) -> Result<Response, ApiError> {
     let Query(q) = query.map_err(|e| ApiError::BadRequest(e.body_text()))?;
     let bbox = q.bbox.as_deref().map(parse_tracks_bbox).transpose()?;
-    let modes: Option<Vec<&'static str>> = q
-        .mode
-        .as_deref()
-        .map(|m| {
-            m.split(',')
-                .map(|s| {
-                    s.trim()
-                        .parse::<FlightMode>()
-                        .map(FlightMode::as_str)
-                        .map_err(ApiError::BadRequest)
-                })
-                .collect()
-        })
-        .transpose()?;
+    let modes = q.mode.as_deref().map(parse_modes).transpose()?;
     let filtered = bbox.is_some() || modes.is_some();
     let gzip_ok = !filtered && accepts_gzip(&request_headers);
     let cached = api.tracks.get(&api.shared, gzip_ok).await?;

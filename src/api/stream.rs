@@ -31,7 +31,6 @@ use crate::daemon::registry::TrackState;
 use crate::daemon::Shared;
 use crate::decode::Icao;
 use crate::output::{Listener, OutputEvent};
-use crate::track::FlightMode;
 use axum::body::{Body, Bytes};
 use axum::extract::rejection::QueryRejection;
 use axum::extract::{Query, State};
@@ -165,20 +164,7 @@ impl Filter {
                 Ok(v)
             })
             .transpose()?;
-        let modes = q
-            .mode
-            .as_deref()
-            .map(|m| {
-                m.split(',')
-                    .map(|s| {
-                        s.trim()
-                            .parse::<FlightMode>()
-                            .map(FlightMode::as_str)
-                            .map_err(ApiError::BadRequest)
-                    })
-                    .collect::<Result<Vec<_>, _>>()
-            })
-            .transpose()?;
+        let modes = q.mode.as_deref().map(super::parse_modes).transpose()?;
         Ok(Self { bbox, icaos, modes })
     }
 

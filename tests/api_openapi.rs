@@ -163,6 +163,20 @@ async fn the_document_describes_every_route_and_real_responses_match_it() {
             200,
         ),
         ("/api/v1/tracks?bbox=1,2".into(), "/api/v1/tracks", 400),
+        // Empty is no filter (what a form with empty fields sends).
+        ("/api/v1/tracks?bbox=&mode=".into(), "/api/v1/tracks", 200),
+        // Valid per its pattern, refused by the one rule a pattern cannot say.
+        (
+            "/api/v1/tracks?bbox=50,0,40,1".into(),
+            "/api/v1/tracks",
+            400,
+        ),
+        // Exponents are not in the pattern, so not accepted either.
+        (
+            "/api/v1/tracks?bbox=3.3e1,-119,35,-117".into(),
+            "/api/v1/tracks",
+            400,
+        ),
         (
             format!("/api/v1/tracks/{icao}"),
             "/api/v1/tracks/{icao}",
@@ -228,11 +242,41 @@ async fn the_document_describes_every_route_and_real_responses_match_it() {
             .any(|k| k.starts_with("application/openmetrics-text"))
     );
 
-    // The stream's events: their data against Track, Retire and Stats.
+    // Each query parameter carries the pattern its handler checks.
+    for (path, name, pattern) in adsb_tracker::api::params::PATTERNS {
+        let params = doc["paths"][path]["get"]["parameters"].as_array().unwrap();
+        let p = params.iter().find(|p| p["name"] == name).unwrap();
+        assert_eq!(p["schema"]["pattern"], pattern, "{path} {name}");
+    }
+
+    // The stream's events: their data against Track, Retire and Stats, as the document
+    // says (one event is {event, data}, data JSON of the schema its name selects).
     let schemas = &doc["components"]["schemas"];
-    assert!(
-        doc["paths"]["/api/v1/stream"]["get"]["responses"]["200"]["content"]["text/event-stream"]
-            .is_object()
+    let event_schema = &doc["paths"]["/api/v1/stream"]["get"]["responses"]["200"]["content"]
+        ["text/event-stream"]["schema"];
+    let by_name: std::collections::BTreeMap<String, String> = event_schema["oneOf"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|e| {
+            let p = &e["properties"];
+            assert_eq!(p["data"]["contentMediaType"], "application/json");
+            (
+                p["event"]["const"].as_str().unwrap().to_string(),
+                p["data"]["contentSchema"]["$ref"]
+                    .as_str()
+                    .unwrap()
+                    .to_string(),
+            )
+        })
+        .collect();
+    assert_eq!(
+        by_name.into_iter().collect::<Vec<_>>(),
+        [
+            ("retire".into(), "#/components/schemas/Retire".into()),
+            ("stats".into(), "#/components/schemas/Stats".into()),
+            ("track".into(), "#/components/schemas/Track".into()),
+        ]
     );
     let mut c = SseClient::connect(d.addr, "/api/v1/stream").await;
     let events = c.events_for(Duration::from_secs(3)).await;

@@ -5,6 +5,7 @@
 
 mod fair;
 pub mod openapi;
+pub mod params;
 pub mod readsb;
 pub mod server;
 pub mod stream;
@@ -14,7 +15,6 @@ mod web;
 use crate::daemon::registry::TrackState;
 use crate::daemon::Shared;
 use crate::decode::Icao;
-use crate::track::FlightMode;
 use axum::body::{Body, Bytes};
 use axum::extract::rejection::{PathRejection, QueryRejection};
 use axum::extract::{FromRef, Path, Query, State};
@@ -209,44 +209,19 @@ struct TracksQuery {
     mode: Option<String>,
 }
 
-/// A `mode` filter (of `/api/v1/tracks` and the stream): one label or a comma-separated
-/// list (`CV`, `CT,CA`), as the labels' static names.
-fn parse_modes(m: &str) -> Result<Vec<&'static str>, ApiError> {
-    m.split(',')
-        .map(|s| {
-            s.trim()
-                .parse::<FlightMode>()
-                .map(FlightMode::as_str)
-                .map_err(ApiError::BadRequest)
-        })
-        .collect()
-}
-
-/// `/api/v1/tracks`' `bbox`: `south,west,north,east` in degrees (latitude first, unlike the
-/// stream's GeoJSON order); `west > east` crosses the antimeridian.
-fn parse_tracks_bbox(s: &str) -> Result<stream::LonLatBox, ApiError> {
-    stream::four_degrees(s)
-        .and_then(|[south, west, north, east]| stream::LonLatBox::new(west, south, east, north))
-        .ok_or_else(|| {
-            ApiError::BadRequest(format!(
-                "bbox {s:?}: expected south,west,north,east in degrees"
-            ))
-        })
-}
-
 /// Every track, or those in `bbox` and of the `mode`s asked, with the feed time. Served
 /// from [`TracksCache`]: the full list as cached, gzip-coded for a client that accepts it;
 /// a filtered list is serialised from the cached tracks. `ETag` names the cache's
 /// generation, and `If-None-Match` with it gets a 304.
 #[utoipa::path(get, path = "/api/v1/tracks", tag = "tracks",
     params(
-        ("bbox" = Option<String>, Query, description = "south,west,north,east in degrees (west > east crosses the antimeridian)"),
-        ("mode" = Option<String>, Query, description = "comma-separated flight-mode labels: CV, CA, CT, CH, CHCA"),
+        ("bbox" = Option<String>, Query, description = "south,west,north,east in degrees (west > east crosses the antimeridian; south must not be north of north); empty is no filter"),
+        ("mode" = Option<String>, Query, description = "comma-separated flight-mode labels: CV, CA, CT, CH, CHCA (any case); empty is no filter"),
     ),
     responses(
         (status = 200, description = "The tracks with an estimate (gzip-coded when the client accepts it; `ETag` names the list's generation)", body = openapi::Tracks),
         (status = 304, description = "Not modified: `If-None-Match` named the current generation"),
-        (status = 400, description = "A malformed or unknown parameter", body = ErrorBody),
+        (status = 400, description = "A malformed or unknown parameter, or a box whose latitudes are out of order", body = ErrorBody),
     ))]
 async fn tracks(
     State(api): State<ApiState>,
@@ -254,8 +229,8 @@ async fn tracks(
     query: Result<Query<TracksQuery>, QueryRejection>,
 ) -> Result<Response, ApiError> {
     let Query(q) = query.map_err(|e| ApiError::BadRequest(e.body_text()))?;
-    let bbox = q.bbox.as_deref().map(parse_tracks_bbox).transpose()?;
-    let modes = q.mode.as_deref().map(parse_modes).transpose()?;
+    let bbox = params::tracks_bbox(q.bbox.as_deref().unwrap_or(""))?;
+    let modes = params::modes(q.mode.as_deref().unwrap_or(""))?;
     let filtered = bbox.is_some() || modes.is_some();
     let gzip_ok = !filtered && accepts_gzip(&request_headers);
     let cached = api.tracks.get(&api.shared, gzip_ok).await?;
@@ -439,35 +414,4 @@ async fn metrics(State(shared): State<Shared>) -> Response {
         shared.stats.encode_prometheus(),
     )
         .into_response()
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn bbox_parses_and_contains() {
-        let b = parse_tracks_bbox("43.0,1.0,50.0,3.0").unwrap();
-        assert!(b.contains(49.0, 2.5));
-        assert!(!b.contains(49.0, 3.5));
-        assert!(!b.contains(42.9, 2.0));
-        // Across the antimeridian.
-        let b = parse_tracks_bbox("-10,170,10,-170").unwrap();
-        assert!(b.contains(0.0, 175.0) && b.contains(0.0, -175.0) && !b.contains(0.0, 0.0));
-    }
-
-    #[test]
-    fn bad_bboxes_are_refused() {
-        for s in [
-            "",
-            "1,2,3",
-            "1,2,3,4,5",
-            "a,b,c,d",
-            "50,0,40,1",
-            "0,0,95,1",
-            "0,-190,1,1",
-        ] {
-            assert!(parse_tracks_bbox(s).is_err(), "{s:?} accepted");
-        }
-    }
 }

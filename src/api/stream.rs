@@ -26,6 +26,7 @@
 //! takes nothing for `server.write_timeout_s` is cut by the server. Comment lines keep an
 //! idle connection alive every `server.stream.keepalive_s`.
 
+use super::params::{self, LonLatBox};
 use super::{ApiError, ApiState};
 use crate::daemon::registry::TrackState;
 use crate::daemon::Shared;
@@ -59,9 +60,6 @@ const CATCH_UP: Duration = Duration::from_secs(1);
 /// Reconnection delay the client is asked to use, ms (the SSE `retry:` field).
 const RETRY_MS: u32 = 2000;
 
-/// Most addresses in an `icao=` filter.
-const MAX_ICAO_FILTER: usize = 10_000;
-
 /// `GET /api/v1/stream` query.
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -72,66 +70,6 @@ pub(super) struct StreamQuery {
     icao: Option<String>,
     /// Comma-separated flight-mode labels.
     mode: Option<String>,
-}
-
-/// Four comma-separated numbers (both `bbox` forms of the API), or `None`.
-pub fn four_degrees(s: &str) -> Option<[f64; 4]> {
-    let v: Vec<f64> = s
-        .split(',')
-        .map(|p| p.trim().parse::<f64>())
-        .collect::<Result<_, _>>()
-        .ok()?;
-    v.try_into().ok()
-}
-
-/// A longitude/latitude box, GeoJSON's order; `min_lon > max_lon` crosses the antimeridian.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct LonLatBox {
-    pub min_lon: f64,
-    pub min_lat: f64,
-    pub max_lon: f64,
-    pub max_lat: f64,
-}
-
-impl LonLatBox {
-    /// `minLon,minLat,maxLon,maxLat` in degrees (the stream's `bbox`).
-    pub fn parse(s: &str) -> Result<Self, ApiError> {
-        four_degrees(s)
-            .and_then(|[min_lon, min_lat, max_lon, max_lat]| {
-                Self::new(min_lon, min_lat, max_lon, max_lat)
-            })
-            .ok_or_else(|| {
-                ApiError::BadRequest(format!(
-                    "bbox {s:?}: expected minLon,minLat,maxLon,maxLat in degrees"
-                ))
-            })
-    }
-
-    /// The box, if its corners are on the globe and its south is not north of its north.
-    pub fn new(min_lon: f64, min_lat: f64, max_lon: f64, max_lat: f64) -> Option<Self> {
-        let lat_ok = |x: f64| (-90.0..=90.0).contains(&x);
-        let lon_ok = |x: f64| (-180.0..=180.0).contains(&x);
-        (lat_ok(min_lat)
-            && lat_ok(max_lat)
-            && lon_ok(min_lon)
-            && lon_ok(max_lon)
-            && min_lat <= max_lat)
-            .then_some(Self {
-                min_lon,
-                min_lat,
-                max_lon,
-                max_lat,
-            })
-    }
-
-    pub fn contains(&self, lat: f64, lon: f64) -> bool {
-        let lon_in = if self.min_lon <= self.max_lon {
-            (self.min_lon..=self.max_lon).contains(&lon)
-        } else {
-            lon >= self.min_lon || lon <= self.max_lon
-        };
-        (self.min_lat..=self.max_lat).contains(&lat) && lon_in
-    }
 }
 
 /// What a client asked to see.
@@ -145,27 +83,11 @@ pub struct Filter {
 
 impl Filter {
     fn parse(q: &StreamQuery) -> Result<Self, ApiError> {
-        let bbox = q.bbox.as_deref().map(LonLatBox::parse).transpose()?;
-        let icaos = q
-            .icao
-            .as_deref()
-            .map(|list| -> Result<Vec<Icao>, ApiError> {
-                let mut v: Vec<Icao> = list
-                    .split(',')
-                    .map(|s| s.trim().parse::<Icao>().map_err(ApiError::BadRequest))
-                    .collect::<Result<_, _>>()?;
-                if v.len() > MAX_ICAO_FILTER {
-                    return Err(ApiError::BadRequest(format!(
-                        "icao: at most {MAX_ICAO_FILTER} addresses"
-                    )));
-                }
-                v.sort_unstable();
-                v.dedup();
-                Ok(v)
-            })
-            .transpose()?;
-        let modes = q.mode.as_deref().map(super::parse_modes).transpose()?;
-        Ok(Self { bbox, icaos, modes })
+        Ok(Self {
+            bbox: params::stream_bbox(q.bbox.as_deref().unwrap_or(""))?,
+            icaos: params::icaos(q.icao.as_deref().unwrap_or(""))?,
+            modes: params::modes(q.mode.as_deref().unwrap_or(""))?,
+        })
     }
 
     /// Could events of this aircraft pass? (Checked before anything else is read.)
@@ -213,13 +135,13 @@ impl Settings {
 /// with its events.
 #[utoipa::path(get, path = "/api/v1/stream", tag = "stream",
     params(
-        ("bbox" = Option<String>, Query, description = "minLon,minLat,maxLon,maxLat in degrees (minLon > maxLon crosses the antimeridian)"),
-        ("icao" = Option<String>, Query, description = "comma-separated ICAO addresses, 6 hex digits each"),
-        ("mode" = Option<String>, Query, description = "comma-separated flight-mode labels: CV, CA, CT, CH, CHCA"),
+        ("bbox" = Option<String>, Query, description = "minLon,minLat,maxLon,maxLat in degrees (minLon > maxLon crosses the antimeridian; minLat must not exceed maxLat); empty is no filter"),
+        ("icao" = Option<String>, Query, description = "comma-separated ICAO addresses, 6 hex digits each, at most 10000; empty is no filter"),
+        ("mode" = Option<String>, Query, description = "comma-separated flight-mode labels: CV, CA, CT, CH, CHCA (any case); empty is no filter"),
     ),
     responses(
         (status = 200, description = "Server-sent events: `track` (data: a Track), `retire` (data: a Retire), `stats` (data: the Stats)", body = String, content_type = "text/event-stream"),
-        (status = 400, description = "A malformed or unknown parameter", body = super::ErrorBody),
+        (status = 400, description = "A malformed or unknown parameter, a box whose latitudes are out of order, or too many addresses", body = super::ErrorBody),
         (status = 503, description = "Over server.stream.max_clients", body = super::ErrorBody),
     ))]
 pub(super) async fn stream(
@@ -563,26 +485,6 @@ fn write_event<T: Serialize>(out: &mut Vec<u8>, name: &str, data: &T) {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn bbox_is_lon_lat_and_crosses_the_antimeridian() {
-        // Los Angeles: lon -118.4, lat 33.9.
-        let b = LonLatBox::parse("-119,33,-118,35").unwrap();
-        assert!(b.contains(33.9, -118.4));
-        assert!(!b.contains(-118.4, 33.9));
-        let b = LonLatBox::parse("170,-10,-170,10").unwrap();
-        assert!(b.contains(0.0, 175.0) && b.contains(0.0, -175.0) && !b.contains(0.0, 0.0));
-        for s in [
-            "",
-            "1,2,3",
-            "a,b,c,d",
-            "0,50,1,40",
-            "0,95,1,96",
-            "-190,0,1,1",
-        ] {
-            assert!(LonLatBox::parse(s).is_err(), "{s:?} accepted");
-        }
-    }
 
     #[test]
     fn filters_parse_and_refuse() {

@@ -82,8 +82,16 @@ enum Command {
     /// (`--scenario`), or an existing `--tracks-out` file against a truth CSV
     /// (`--truth` and `--tracks`).
     Evaluate {
-        #[arg(long, conflicts_with_all = ["truth", "tracks"])]
+        #[arg(long, conflicts_with_all = ["truth", "tracks", "recording"])]
         scenario: Option<String>,
+        /// Real recordings (comma-separated): consistency without truth, per declared NACp
+        /// (diverging share, windowed NIS in its band, pos_sigma_m against the scatter of
+        /// the decoded positions).
+        #[arg(long, conflicts_with_all = ["truth", "tracks"])]
+        recording: Option<String>,
+        /// Frames per second of feed time for untimed frames of `--recording` files.
+        #[arg(long, default_value_t = 1000.0)]
+        nominal_rate: f64,
         /// Monte Carlo runs, 1..=100000.
         #[arg(long, default_value_t = 100, value_parser = clap::value_parser!(u64).range(1..=100_000))]
         runs: u64,
@@ -249,6 +257,45 @@ fn evaluate(
     Ok(())
 }
 
+/// `evaluate --recording`: consistency on real recordings, per tracker and declared NACp.
+fn evaluate_recordings(
+    cfg: &Config,
+    recordings: &str,
+    trackers: &str,
+    nominal_rate_hz: f64,
+    out: &std::path::Path,
+) -> Result<()> {
+    use adsb_tracker::eval::consistency;
+    if !(nominal_rate_hz.is_finite() && nominal_rate_hz > 0.0) {
+        bail!("--nominal-rate must be a positive number of frames per second");
+    }
+    let mut results = Vec::new();
+    for path in recordings.split(',').map(str::trim) {
+        let path = PathBuf::from(path);
+        let frames = consistency::read_frames_at(&path, None, nominal_rate_hz)?;
+        let name = path
+            .file_name()
+            .map_or("recording".to_string(), |s| s.to_string_lossy().to_string());
+        for tracker in trackers.split(',').map(str::trim) {
+            if !adsb_tracker::config::ALGORITHMS.contains(&tracker) {
+                bail!("--trackers: unknown {tracker:?}");
+            }
+            let groups = consistency::measure(&frames, cfg, tracker);
+            results.push(consistency::RecordingResult {
+                recording: name.clone(),
+                tracker: tracker.to_string(),
+                groups,
+            });
+        }
+    }
+    print!("{}", consistency::markdown(&results));
+    let json_path = out.join("consistency.json");
+    std::fs::write(&json_path, serde_json::to_string_pretty(&results)?)
+        .with_context(|| format!("writing {}", json_path.display()))?;
+    eprintln!("wrote {}", json_path.display());
+    Ok(())
+}
+
 #[tokio::main]
 async fn main() -> Result<()> {
     tracing_subscriber::fmt()
@@ -382,6 +429,18 @@ async fn main() -> Result<()> {
             println!("{}", serde_json::to_string_pretty(&summary)?);
         }
         Command::Evaluate {
+            recording: Some(recording),
+            trackers,
+            nominal_rate,
+            out,
+            config,
+            ..
+        } => {
+            let cfg = load_config(config.as_ref())?;
+            std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
+            evaluate_recordings(&cfg, &recording, &trackers, nominal_rate, &out)?;
+        }
+        Command::Evaluate {
             scenario,
             runs,
             trackers,
@@ -391,6 +450,7 @@ async fn main() -> Result<()> {
             frames,
             out,
             config,
+            ..
         } => {
             let cfg = load_config(config.as_ref())?;
             std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;

@@ -117,6 +117,11 @@ pub struct TrackState {
     /// Velocity covariance in the same axes, (m/s)^2.
     #[schema(value_type = Vec<Vec<f64>>)]
     pub vel_cov_enu_m2ps2: [[f64; 3]; 3],
+    /// Windowed normalised innovation squared: the sum of the last updates' NIS (null when
+    /// the tracker keeps none). χ²(`nis_dof`) for a consistent filter (`track::nis`).
+    pub nis: Option<f64>,
+    /// Degrees of freedom of `nis`: the measured components in its window.
+    pub nis_dof: Option<u32>,
     /// Predicted positions at the configured horizons (published snapshots only; empty in
     /// `--tracks-out` lines).
     #[serde(skip_serializing_if = "Vec::is_empty")]
@@ -267,6 +272,8 @@ impl Published {
             positions_rejected: facts.positions_rejected,
             pos_cov_enu_m2: pos_cov,
             vel_cov_enu_m2ps2: vel_cov,
+            nis: est.nis.map(|n| n.nis),
+            nis_dof: est.nis.map(|n| n.dof),
             predictions: self
                 .predictions
                 .iter()

@@ -4,6 +4,7 @@
 //! tracking code of the daemon ([`crate::daemon::pipeline`]).
 
 pub mod bench;
+pub mod consistency;
 pub mod io;
 pub mod plot;
 pub mod report;

@@ -964,6 +964,7 @@ mod tests {
                 lateral: Default::default(),
                 speed: Default::default(),
                 vertical: Default::default(),
+                nis: None,
             },
             facts: AircraftFacts {
                 squawk: Some(0o7700),

@@ -158,6 +158,7 @@ pub struct CvKalman {
     diverging: bool,
     divergence_events: u64,
     reinitialisations: u64,
+    nis: super::nis::NisWindow,
 }
 
 impl Default for CvKalman {
@@ -180,6 +181,7 @@ impl CvKalman {
             diverging: false,
             divergence_events: 0,
             reinitialisations: 0,
+            nis: super::nis::NisWindow::default(),
         }
     }
 
@@ -238,6 +240,7 @@ impl CvKalman {
         });
         self.pending_velocity = None;
         self.diverging = false;
+        self.nis.clear();
     }
 
     /// Paper 000's criterion over the position part of an innovation: εᵀε > r·Tr(S).
@@ -262,6 +265,7 @@ impl CvKalman {
             lateral: super::Lateral::Straight,
             speed: super::SpeedTrend::Constant,
             vertical: super::VerticalTrend::Level,
+            nis: self.nis.stat(),
         }
     }
 }
@@ -336,6 +340,8 @@ impl Tracker for CvKalman {
                 r.fixed_view_mut::<3, 3>(3, 3).copy_from(&vel.cov);
                 let inn: Innovation<6> =
                     kalman::update(&mut x, &mut p, &z, &Matrix6::identity(), &r)?;
+                self.nis
+                    .push(inn.nis, super::nis::measured_dof(Some(pos), Some(vel)));
                 Some((
                     inn.residual.fixed_rows::<3>(0).into_owned(),
                     inn.s.fixed_view::<3, 3>(0, 0).into_owned(),
@@ -343,10 +349,14 @@ impl Tracker for CvKalman {
             }
             (Some(pos), None) => {
                 let inn = kalman::update(&mut x, &mut p, &pos.value, &h_block(0), &pos.cov)?;
+                self.nis
+                    .push(inn.nis, super::nis::measured_dof(Some(pos), None));
                 Some((inn.residual, inn.s))
             }
             (None, Some(vel)) => {
-                kalman::update(&mut x, &mut p, &vel.value, &h_block(3), &vel.cov)?;
+                let inn = kalman::update(&mut x, &mut p, &vel.value, &h_block(3), &vel.cov)?;
+                self.nis
+                    .push(inn.nis, super::nis::measured_dof(None, Some(vel)));
                 None
             }
             (None, None) => return Ok(()),

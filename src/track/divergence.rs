@@ -141,6 +141,16 @@ pub enum Observation {
 }
 
 impl Observation {
+    /// Measured components (for the windowed NIS, [`super::nis`]).
+    pub fn measured_dof(&self) -> u8 {
+        match self {
+            Self::Position(o) | Self::Velocity(o) => super::nis::measured_components(o),
+            Self::Both(p, v) => {
+                super::nis::measured_components(p) + super::nis::measured_components(v)
+            }
+        }
+    }
+
     /// The observation in a report, `None` when it carries neither.
     pub fn of(position: Option<&Observed>, velocity: Option<&Observed>) -> Option<Self> {
         match (position, velocity) {

@@ -37,6 +37,7 @@ use super::imm::{
 };
 use super::kalman::MotionModel;
 use super::models::{Cv, Matrix6, Matrix9, Model, State6, State9, ACC};
+use super::nis::NisWindow;
 use super::{
     Estimate, FlightMode, Lateral, Measurement, Observed, TrackError, Tracker, TurnDirection,
 };
@@ -205,6 +206,8 @@ pub struct HybridTracker {
     diverging: bool,
     divergence_events: u64,
     stats: HybridStats,
+    /// The windowed NIS of the running filter's nominal innovations.
+    nis: NisWindow,
 }
 
 impl Default for HybridTracker {
@@ -233,6 +236,7 @@ impl HybridTracker {
             diverging: false,
             divergence_events: 0,
             stats: HybridStats::default(),
+            nis: NisWindow::default(),
         }
     }
 
@@ -276,6 +280,7 @@ impl HybridTracker {
         self.cv_divergence_run = 0;
         self.diverging = false;
         self.last_velocity_t_s = None;
+        self.nis.clear();
         if let Some(v) = velocity {
             let local = to_local_axes(&x.fixed_rows::<3>(0).into_owned(), v);
             self.gate.push(t_s, &local, true);
@@ -285,7 +290,7 @@ impl HybridTracker {
 
     /// Runs the current filter on the report.
     fn filter_step(&mut self, dt_s: f64, obs: &Observation) -> Result<(), TrackError> {
-        match &mut self.branch {
+        let nis = match &mut self.branch {
             Branch::Cv { x, p } => {
                 let pred = Prediction::<6>::new(&self.params.cv, x, p, dt_s);
                 let g =
@@ -302,15 +307,19 @@ impl HybridTracker {
                         - g.p.fixed_view::<3, 3>(3, 3);
                 }
                 self.stats.cv_updates += 1;
+                g.nis
             }
             Branch::Imm { .. } => {
                 self.imm.step(dt_s, obs)?;
-                self.diverging = self.imm.diverged(self.imm.most_probable());
+                let best = self.imm.most_probable();
+                self.diverging = self.imm.diverged(best);
                 self.velocity_correction_cov = *self.imm.velocity_correction_cov();
                 self.cv_divergence_run = 0;
                 self.stats.imm_updates += 1;
+                self.imm.nis(best)
             }
-        }
+        };
+        self.nis.push(nis, obs.measured_dof());
         if self.diverging {
             self.divergence_events = self.divergence_events.saturating_add(1);
         }
@@ -503,6 +512,7 @@ impl HybridTracker {
             filter,
             diverging: self.diverging,
             divergence_events: self.divergence_events,
+            nis: self.nis.stat(),
         }
     }
 

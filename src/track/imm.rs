@@ -256,6 +256,8 @@ pub struct Imm {
     /// Σⱼ μⱼ (Pⱼ(k|k−1) − Pⱼ(k|k)) over the velocity block at the last step.
     velocity_correction_cov: Matrix3<f64>,
     divergence_events: [u64; N_MODES],
+    /// Each mode's NIS at the last step (nominal innovation; NaN when its update failed).
+    nis: [f64; N_MODES],
 }
 
 impl Imm {
@@ -270,6 +272,7 @@ impl Imm {
             divergence_runs: [0; N_MODES],
             velocity_correction_cov: Matrix3::zeros(),
             divergence_events: [0; N_MODES],
+            nis: [f64::NAN; N_MODES],
         };
         imm.mu = imm.normalised(&params.initial_probabilities);
         imm
@@ -380,6 +383,11 @@ impl Imm {
         self.diverged[mode.index()]
     }
 
+    /// The NIS of `mode`'s filter at the last step (NaN before one, or when it failed).
+    pub fn nis(&self, mode: ImmMode) -> f64 {
+        self.nis.get(mode.index()).copied().unwrap_or(f64::NAN)
+    }
+
     /// Divergence events per mode over the estimator's life.
     pub fn divergence_events(&self) -> &[u64; N_MODES] {
         &self.divergence_events
@@ -466,6 +474,7 @@ impl Imm {
         let mut diverged = [false; N_MODES];
         let mut runs = [0; N_MODES];
         let mut corrections = [Matrix3::zeros(); N_MODES];
+        let mut nis = [f64::NAN; N_MODES];
         let mut first_error = None;
         let mut any_ok = false;
         for j in 0..N_MODES {
@@ -493,6 +502,7 @@ impl Imm {
                     p_new[j] = g.p;
                     diverged[j] = g.diverged;
                     runs[j] = g.run;
+                    nis[j] = g.nis;
                     corrections[j] =
                         pred.covariance_block3(g.adapt, VEL) - g.p.fixed_view::<3, 3>(VEL, VEL);
                     if g.log_likelihood.is_finite() {
@@ -527,6 +537,7 @@ impl Imm {
         self.mu = self.normalised(&mu);
         self.diverged = diverged;
         self.divergence_runs = runs;
+        self.nis = nis;
         self.velocity_correction_cov = corrections
             .iter()
             .zip(self.mu)
@@ -770,6 +781,7 @@ pub(crate) struct EstimateInfo {
     pub filter: &'static str,
     pub diverging: bool,
     pub divergence_events: u64,
+    pub nis: Option<super::nis::NisStat>,
 }
 
 /// An [`Estimate`] from the position/velocity part of a state and covariance (6 or 9 states).
@@ -794,6 +806,7 @@ pub(crate) fn estimate_of<const N: usize>(
         lateral: info.labels.lateral,
         speed: info.labels.speed,
         vertical: info.labels.vertical,
+        nis: info.nis,
     }
 }
 
@@ -842,6 +855,7 @@ pub struct ImmTracker {
     params: ImmTrackerParams,
     imm: Imm,
     init: Initiator,
+    nis: super::nis::NisWindow,
 }
 
 impl Default for ImmTracker {
@@ -857,6 +871,7 @@ impl ImmTracker {
             params,
             imm: Imm::new(params.imm),
             init: Initiator::new(params.init, &params.imm.models.cv),
+            nis: super::nis::NisWindow::default(),
         }
     }
 
@@ -875,6 +890,7 @@ impl ImmTracker {
             filter: IMM_NAME,
             diverging: self.imm.diverged(best),
             divergence_events: self.imm.divergence_events()[best.index()],
+            nis: self.nis.stat(),
         }
     }
 }
@@ -931,6 +947,7 @@ impl Tracker for ImmTracker {
             Start::Waiting => Ok(()),
             Start::New(x, p) => {
                 self.imm.reset(&x, &p, None);
+                self.nis.clear();
                 Ok(())
             }
             Start::Running => {
@@ -940,6 +957,10 @@ impl Tracker for ImmTracker {
                 let dt_s = m.t_s - track_t_s.unwrap_or(m.t_s);
                 self.imm.step(dt_s, &obs)?;
                 self.init.advance(m.t_s);
+                self.nis.push(
+                    self.imm.nis(self.imm.most_probable()),
+                    super::nis::measured_dof(m.position.as_ref(), m.velocity.as_ref()),
+                );
                 Ok(())
             }
         }

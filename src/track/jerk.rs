@@ -311,6 +311,7 @@ impl JerkTracker {
             lateral: super::Lateral::Straight,
             speed: super::SpeedTrend::Constant,
             vertical: super::VerticalTrend::Level,
+            nis: None,
         }
     }
 }

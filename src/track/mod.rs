@@ -16,6 +16,7 @@ pub mod imm;
 pub mod jerk;
 pub mod kalman;
 pub mod models;
+pub mod nis;
 pub mod singer;
 pub mod vsimm;
 
@@ -163,6 +164,9 @@ pub struct Estimate {
     pub speed: SpeedTrend,
     /// Vertical movement (I062/200 VERT).
     pub vertical: VerticalTrend,
+    /// The windowed normalised innovation squared ([`nis`]); `None` before the first
+    /// update or for a tracker that does not keep one.
+    pub nis: Option<nis::NisStat>,
 }
 
 impl Estimate {

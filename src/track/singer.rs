@@ -373,6 +373,7 @@ impl SingerTracker {
             lateral: super::Lateral::Straight,
             speed: super::SpeedTrend::Constant,
             vertical: super::VerticalTrend::Level,
+            nis: None,
         }
     }
 }

@@ -521,6 +521,7 @@ impl Vsimm {
             lateral: super::Lateral::Straight,
             speed: super::SpeedTrend::Constant,
             vertical: super::VerticalTrend::Level,
+            nis: None,
         }
     }
 

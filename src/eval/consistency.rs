@@ -1,0 +1,288 @@
+//! Consistency on real recordings, where there is no truth: how often a tracker says it is
+//! diverging, how its stated uncertainty compares with the scatter of the decoded positions
+//! around its track, and (when the tracker publishes one) how often its windowed normalised
+//! innovation squared sits inside its chi-square band. Issue 10's claims are measured with
+//! this (`adsb-tracker evaluate --recording FILE`), and the tables of `docs/evaluation.md`
+//! come from it.
+//!
+//! Every update of the daemon's pipeline ([`super::bench::sync_pipeline`]) is one sample,
+//! grouped by the aircraft's declared NACp at that update ("none" before or without an
+//! operational status). Definitions:
+//! - airborne: the aircraft's last position was airborne;
+//! - steady: airborne, the track at least [`STEADY_AFTER_S`] old, and the published labels
+//!   straight, constant speed, level (for `kalman-cv`, which never labels, every airborne
+//!   update past the start);
+//! - scatter: the horizontal distance from each decoded position to the track's estimate
+//!   published on that update (the estimate moves towards the fix by its gain, so this is a
+//!   slight underestimate of the distance to the prior track);
+//! - NIS in band: the published windowed NIS (`nis`, a sum over `nis_dof` measured
+//!   components) inside the two-sided 95 % band of χ²(`nis_dof`).
+
+use super::bench::sync_pipeline;
+use super::io::EvalError;
+use crate::config::Config;
+use crate::decode::Icao;
+use crate::feed::replay::FileReader;
+use crate::feed::{Format, RawFrame};
+use serde::Serialize;
+use std::collections::{BTreeMap, HashMap};
+use std::fmt::Write;
+use std::path::Path;
+
+/// A track younger than this is still converging: not "steady", s.
+pub const STEADY_AFTER_S: f64 = 30.0;
+
+/// Reads every frame of a recording, timing untimed frames at `nominal_rate_hz`.
+pub fn read_frames_at(
+    path: &Path,
+    format: Option<Format>,
+    nominal_rate_hz: f64,
+) -> Result<Vec<RawFrame>, EvalError> {
+    let mut reader = FileReader::open(path, format, nominal_rate_hz)
+        .map_err(|e| EvalError::Other(e.to_string()))?;
+    let mut all = Vec::new();
+    let mut batch = Vec::new();
+    while reader
+        .next_batch(&mut batch)
+        .map_err(|e| EvalError::Other(e.to_string()))?
+    {
+        all.extend_from_slice(&batch);
+    }
+    Ok(all)
+}
+
+/// Counts and samples of one group (a NACp, or all).
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct Group {
+    pub updates: u64,
+    pub airborne: u64,
+    pub airborne_diverging: u64,
+    pub steady: u64,
+    pub steady_diverging: u64,
+    /// Steady updates that carried a windowed NIS, and those inside its band.
+    pub steady_nis: u64,
+    pub steady_nis_in_band: u64,
+    /// Steady updates: the windowed NIS over its dof (1 for a consistent filter).
+    #[serde(skip)]
+    pub nis_per_dof: Vec<f64>,
+    /// Steady updates with a decoded position: distance fix-estimate, m.
+    #[serde(skip)]
+    pub scatter_m: Vec<f64>,
+    /// Steady updates: published pos_sigma_m.
+    #[serde(skip)]
+    pub pos_sigma_m: Vec<f64>,
+    /// Steady updates with a decoded position: that distance over the published 1-σ of the
+    /// same direction, squared, summed (a position NEES against the fix: 2 + the fix's
+    /// own noise over the published variance).
+    #[serde(skip)]
+    pub fix_nees: Vec<f64>,
+}
+
+fn median(v: &mut [f64]) -> Option<f64> {
+    if v.is_empty() {
+        return None;
+    }
+    v.sort_unstable_by(f64::total_cmp);
+    v.get(v.len() / 2).copied()
+}
+
+fn pct(n: u64, d: u64) -> Option<f64> {
+    (d > 0).then(|| 100.0 * n as f64 / d as f64)
+}
+
+impl Group {
+    pub fn airborne_diverging_pct(&self) -> Option<f64> {
+        pct(self.airborne_diverging, self.airborne)
+    }
+    pub fn steady_diverging_pct(&self) -> Option<f64> {
+        pct(self.steady_diverging, self.steady)
+    }
+    pub fn nis_in_band_pct(&self) -> Option<f64> {
+        pct(self.steady_nis_in_band, self.steady_nis)
+    }
+    pub fn median_scatter_m(&self) -> Option<f64> {
+        median(&mut self.scatter_m.clone())
+    }
+    pub fn median_nis_per_dof(&self) -> Option<f64> {
+        median(&mut self.nis_per_dof.clone())
+    }
+    pub fn median_pos_sigma_m(&self) -> Option<f64> {
+        median(&mut self.pos_sigma_m.clone())
+    }
+    fn merge(&mut self, o: &Group) {
+        self.updates += o.updates;
+        self.airborne += o.airborne;
+        self.airborne_diverging += o.airborne_diverging;
+        self.steady += o.steady;
+        self.steady_diverging += o.steady_diverging;
+        self.steady_nis += o.steady_nis;
+        self.steady_nis_in_band += o.steady_nis_in_band;
+        self.scatter_m.extend_from_slice(&o.scatter_m);
+        self.pos_sigma_m.extend_from_slice(&o.pos_sigma_m);
+        self.fix_nees.extend_from_slice(&o.fix_nees);
+        self.nis_per_dof.extend_from_slice(&o.nis_per_dof);
+    }
+}
+
+/// One tracker on one recording.
+#[derive(Clone, Debug, Serialize)]
+pub struct RecordingResult {
+    pub recording: String,
+    pub tracker: String,
+    /// By declared NACp ("none", "0".."11") and "all".
+    pub groups: BTreeMap<String, Group>,
+}
+
+/// The two-sided 95 % band of χ²(dof) (Wilson–Hilferty; within 1 % for dof ≥ 3).
+pub fn chi2_band(dof: f64) -> (f64, f64) {
+    let z = 1.959_963_984_540_054;
+    let a = 2.0 / (9.0 * dof);
+    let q = |z: f64| dof * (1.0 - a + z * a.sqrt()).powi(3).max(0.0);
+    (q(-z), q(z))
+}
+
+/// Horizontal offset (east, north) of (lat, lon) from (lat0, lon0), m, on a local sphere:
+/// plenty for the metres between a fix and its estimate.
+fn offset_en_m(lat0: f64, lon0: f64, lat: f64, lon: f64) -> (f64, f64) {
+    const R: f64 = 6_371_008.8;
+    let dn = (lat - lat0).to_radians() * R;
+    let de = (lon - lon0).to_radians() * R * lat0.to_radians().cos();
+    (de, dn)
+}
+
+/// Runs `frames` through the pipeline with `tracker` and gathers the groups.
+pub fn measure(frames: &[RawFrame], config: &Config, tracker: &str) -> BTreeMap<String, Group> {
+    let mut pipeline = sync_pipeline(config, tracker);
+    let mut groups: BTreeMap<String, Group> = BTreeMap::new();
+    let mut first_t: HashMap<Icao, f64> = HashMap::new();
+    let labels = tracker != "kalman-cv";
+    for f in frames {
+        let Some(u) = pipeline.push(f) else { continue };
+        let Some(s) = &u.state else { continue };
+        let t0 = *first_t.entry(s.icao).or_insert(s.t);
+        let key = s.nac_p.map_or("none".to_string(), |n| n.to_string());
+        let g = groups.entry(key).or_default();
+        g.updates += 1;
+        if s.on_ground {
+            continue;
+        }
+        g.airborne += 1;
+        g.airborne_diverging += u64::from(s.diverging);
+        let steady = s.t - t0 >= STEADY_AFTER_S
+            && (!labels
+                || (s.mode == "CV"
+                    && s.lateral == "straight"
+                    && s.speed == "constant"
+                    && s.vertical == "level"));
+        if !steady {
+            continue;
+        }
+        g.steady += 1;
+        g.steady_diverging += u64::from(s.diverging);
+        g.pos_sigma_m.push(s.pos_sigma_m);
+        if let (Some(nis), Some(dof)) = (s.nis, s.nis_dof) {
+            if dof > 0 {
+                g.steady_nis += 1;
+                let (lo, hi) = chi2_band(f64::from(dof));
+                g.steady_nis_in_band += u64::from((lo..=hi).contains(&nis));
+                g.nis_per_dof.push(nis / f64::from(dof));
+            }
+        }
+        if let Some((_, lat, lon, _)) = u.fix {
+            let (de, dn) = offset_en_m(s.lat, s.lon, lat, lon);
+            g.scatter_m.push(de.hypot(dn));
+            let c = &s.pos_cov_enu_m2;
+            let p = nalgebra::Matrix2::new(c[0][0], c[0][1], c[1][0], c[1][1]);
+            if let Some(ch) = p.cholesky() {
+                let d = nalgebra::Vector2::new(de, dn);
+                g.fix_nees.push(d.dot(&ch.solve(&d)));
+            }
+        }
+    }
+    let mut all = Group::default();
+    for g in groups.values() {
+        all.merge(g);
+    }
+    groups.insert("all".to_string(), all);
+    groups
+}
+
+fn f(v: Option<f64>, digits: usize) -> String {
+    v.map_or_else(|| "-".to_string(), |x| format!("{x:.digits$}"))
+}
+
+/// The markdown table of `results` (one row per recording, tracker and NACp group).
+pub fn markdown(results: &[RecordingResult]) -> String {
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        "| recording | tracker | NACp | airborne updates | diverging % airborne | steady updates | diverging % steady | NIS in 95 % band % (steady) | median NIS/dof (steady) | median pos_sigma_m | median fix-to-track m |"
+    );
+    let _ = writeln!(s, "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|");
+    for r in results {
+        // "all" first, then the groups in NACp order, "none" last.
+        let mut keys: Vec<&String> = r.groups.keys().collect();
+        keys.sort_by_key(|k| match k.as_str() {
+            "all" => -2,
+            "none" => 100,
+            n => n.parse::<i32>().unwrap_or(99),
+        });
+        for k in keys {
+            let Some(g) = r.groups.get(k) else { continue };
+            if g.airborne == 0 {
+                continue;
+            }
+            let _ = writeln!(
+                s,
+                "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
+                r.recording,
+                r.tracker,
+                k,
+                g.airborne,
+                f(g.airborne_diverging_pct(), 1),
+                g.steady,
+                f(g.steady_diverging_pct(), 1),
+                f(g.nis_in_band_pct(), 1),
+                f(g.median_nis_per_dof(), 2),
+                f(g.median_pos_sigma_m(), 2),
+                f(g.median_scatter_m(), 2),
+            );
+        }
+    }
+    s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn chi2_band_matches_the_tables() {
+        // Tabulated χ²(6): 2.5 % 1.237, 97.5 % 14.449; χ²(60): 40.482, 83.298.
+        let (lo, hi) = chi2_band(6.0);
+        assert!(
+            (lo - 1.237).abs() < 0.05 && (hi - 14.449).abs() < 0.1,
+            "{lo} {hi}"
+        );
+        let (lo, hi) = chi2_band(60.0);
+        assert!(
+            (lo - 40.482).abs() < 0.1 && (hi - 83.298).abs() < 0.1,
+            "{lo} {hi}"
+        );
+    }
+
+    #[test]
+    fn afr34zg_flags_and_scatter_are_measured() {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/afr34zg-cdg-tls.jsonl");
+        let frames = read_frames_at(&path, None, 1000.0).unwrap();
+        let cfg = Config::default_config().unwrap();
+        let g = measure(&frames, &cfg, "hybrid");
+        let all = g.get("all").unwrap();
+        // The whole flight is one aircraft declaring no NACp.
+        assert_eq!(g.get("none").unwrap().updates, all.updates);
+        assert!(all.airborne > 10_000, "{}", all.airborne);
+        assert!(all.steady > 1_000, "{}", all.steady);
+        let scatter = all.median_scatter_m().unwrap();
+        assert!(scatter > 1.0 && scatter < 30.0, "{scatter}");
+    }
+}

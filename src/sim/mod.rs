@@ -85,7 +85,7 @@ impl SimSummary {
 }
 
 /// The built-in scenarios: name and TOML text (fixtures/scenarios/NAME.toml, embedded).
-pub const BUILTIN: [(&str, &str); 10] = [
+pub const BUILTIN: [(&str, &str); 13] = [
     (
         "paper000",
         include_str!("../../fixtures/scenarios/paper000.toml"),
@@ -117,6 +117,18 @@ pub const BUILTIN: [(&str, &str); 10] = [
     (
         "approach",
         include_str!("../../fixtures/scenarios/approach.toml"),
+    ),
+    (
+        "airliner-nacp10",
+        include_str!("../../fixtures/scenarios/airliner-nacp10.toml"),
+    ),
+    (
+        "turns-undeclared",
+        include_str!("../../fixtures/scenarios/turns-undeclared.toml"),
+    ),
+    (
+        "turns-correlated",
+        include_str!("../../fixtures/scenarios/turns-correlated.toml"),
     ),
     ("fleet", include_str!("../../fixtures/scenarios/fleet.toml")),
     (
@@ -186,7 +198,7 @@ mod tests {
             e,
             "no scenario file \"nope\" and no built-in scenario of that name \
              (built-in: paper000, paper000-positions, paper001, paper002, paper002-positions, \
-             paper003, departure, approach, fleet, fleet-uniform)"
+             paper003, departure, approach, airliner-nacp10, turns-undeclared, turns-correlated, fleet, fleet-uniform)"
         );
     }
 

@@ -17,6 +17,17 @@
 //! quantised to 25 ft (no barometric error). Times are the emission times on the 12 MHz Beast
 //! clock (no propagation delay: 0.3 ms at 100 km).
 //!
+//! What real traffic adds, each off by default (scenario keys, [`super::scenario::Settings`]):
+//! white noise below the declared bound (`position_noise_sigma_m`,
+//! `velocity_noise_sigma_mps`: a NACp is a 95 % bound, not a noise level); a correlated GNSS
+//! error added to every position, per horizontal axis a first-order Gauss–Markov process of
+//! stationary σ `gnss_bias_sigma_m` and time constant `gnss_bias_tau_s`, stepped exactly
+//! between position reports (b ← e^(−Δ/τ) b + σ √(1 − e^(−2Δ/τ)) w, started from its
+//! stationary law); undeclared accuracy (`declare_accuracy = false`: no operational
+//! status, NACv 0); and a position valid `position_validity_offset_s` before the frame that
+//! carries it. With every key at its default the random streams are the ones the simulator
+//! always drew, so existing scenarios give byte-identical files.
+//!
 //! Outputs, all time-ordered and byte-identical for the same seed: `PREFIX.beast`,
 //! `PREFIX.avr` and `PREFIX.truth.csv`.
 
@@ -108,6 +119,10 @@ struct Config {
     nac_p: u8,
     nac_v: u8,
     velocity_reports: bool,
+    declare_accuracy: bool,
+    bias_sigma_m: f64,
+    bias_tau_s: f64,
+    position_offset_s: f64,
     ref_lat_rad: f64,
     ref_lon_rad: f64,
     ref_m: f64,
@@ -142,6 +157,13 @@ struct Emitter {
     truth_k: u64,
     odd: bool,
     last_truth_tick: Option<u64>,
+    /// The flight again, for positions valid at another time than the frame's
+    /// (`position_validity_offset_s`): its own cursor, so both are queried forward in time.
+    position_flight: Option<Flight>,
+    /// The correlated GNSS error (east, north), m, and the time it was last stepped, s.
+    bias: Option<(f64, f64, f64)>,
+    /// Its own random stream, so the white-noise draws stay those of the other settings.
+    bias_rng: StdRng,
 }
 
 impl Emitter {
@@ -154,7 +176,12 @@ impl Emitter {
         if !cfg.velocity_reports {
             next[VELOCITY] = NEVER;
         }
+        if !cfg.declare_accuracy {
+            next[STATUS] = NEVER;
+        }
         let odd = rng.gen::<bool>();
+        let position_flight =
+            (cfg.position_offset_s != 0.0).then(|| Flight::new(plan.trajectory.clone()));
         Self {
             icao: plan.icao,
             callsign: plan.callsign,
@@ -164,6 +191,9 @@ impl Emitter {
             truth_k: 0,
             odd,
             last_truth_tick: None,
+            position_flight,
+            bias: None,
+            bias_rng: StdRng::seed_from_u64(mix(seed ^ mix(index as u64) ^ 0x6761_7573)),
         }
     }
 
@@ -203,7 +233,12 @@ impl Emitter {
         }
         let frame = match s {
             POSITION => {
-                let f = self.position_frame(&state, cfg);
+                let reported = match self.position_flight.as_mut() {
+                    Some(f) => f.state_at((t_s - cfg.position_offset_s).max(0.0)),
+                    None => state,
+                };
+                let (be, bn) = self.step_bias(t_s, cfg);
+                let f = self.position_frame(&reported, be, bn, cfg);
                 self.odd = !self.odd;
                 f
             }
@@ -215,9 +250,29 @@ impl Emitter {
         self.deliver(s, tick, frame, &state, cfg, out)
     }
 
-    fn position_frame(&mut self, s: &TruthState, cfg: &Config) -> [u8; 14] {
-        let dn: f64 = self.rng.sample::<f64, _>(StandardNormal) * cfg.pos_sigma_m;
-        let de: f64 = self.rng.sample::<f64, _>(StandardNormal) * cfg.pos_sigma_m;
+    /// The correlated GNSS error (east, north) at `t_s`, m: the Gauss–Markov process stepped
+    /// exactly from its last value (module doc); (0, 0) when the scenario has none.
+    fn step_bias(&mut self, t_s: f64, cfg: &Config) -> (f64, f64) {
+        if cfg.bias_sigma_m <= 0.0 {
+            return (0.0, 0.0);
+        }
+        let sigma = cfg.bias_sigma_m;
+        let mut draw = || -> f64 { self.bias_rng.sample::<f64, _>(StandardNormal) };
+        let (e, n) = match self.bias {
+            None => (draw() * sigma, draw() * sigma),
+            Some((e, n, t0)) => {
+                let phi = (-(t_s - t0).max(0.0) / cfg.bias_tau_s).exp();
+                let w = sigma * (1.0 - phi * phi).max(0.0).sqrt();
+                (phi * e + w * draw(), phi * n + w * draw())
+            }
+        };
+        self.bias = Some((e, n, t_s));
+        (e, n)
+    }
+
+    fn position_frame(&mut self, s: &TruthState, be: f64, bn: f64, cfg: &Config) -> [u8; 14] {
+        let dn: f64 = self.rng.sample::<f64, _>(StandardNormal) * cfg.pos_sigma_m + bn;
+        let de: f64 = self.rng.sample::<f64, _>(StandardNormal) * cfg.pos_sigma_m + be;
         let lat = s.lat_deg.to_radians();
         let (m, n) = wgs84::radii_m(lat);
         let lat_deg = (lat + dn / (m + s.alt_m)).to_degrees();
@@ -237,7 +292,7 @@ impl Emitter {
                 vn_kt: vn / MPS_PER_KT,
                 vrate_fpm: vu / MPS_PER_FPM,
                 vrate_source: VerticalRateSource::Baro,
-                nac_v: cfg.nac_v,
+                nac_v: if cfg.declare_accuracy { cfg.nac_v } else { 0 },
             },
         )
     }
@@ -460,14 +515,22 @@ pub fn run(scenario: &Scenario, seed: u64, out_prefix: &Path) -> Result<SimSumma
         end_tick: to_ticks(st.duration_s),
         periods_s,
         jitter_s: st.jitter_s,
-        pos_sigma_m: pos_epu / R95_2D_PER_SIGMA,
-        vel_sigma_mps: vel_bound / R95_2D_PER_SIGMA,
+        pos_sigma_m: st
+            .position_noise_sigma_m
+            .unwrap_or(pos_epu / R95_2D_PER_SIGMA),
+        vel_sigma_mps: st
+            .velocity_noise_sigma_mps
+            .unwrap_or(vel_bound / R95_2D_PER_SIGMA),
         vz_sigma_mps: vz_bound / R95_1D_PER_SIGMA,
         reception_probability: st.reception_probability,
         corrupt_frame_rate: st.corrupt_frame_rate,
         nac_p: st.nac_p,
         nac_v: st.nac_v,
         velocity_reports: st.velocity_reports,
+        declare_accuracy: st.declare_accuracy,
+        bias_sigma_m: st.gnss_bias_sigma_m,
+        bias_tau_s: st.gnss_bias_tau_s,
+        position_offset_s: st.position_validity_offset_s,
         ref_lat_rad: ref_lat,
         ref_lon_rad: scenario.reference.lon_deg.to_radians(),
         ref_m,
@@ -560,6 +623,109 @@ mod tests {
         // Uniform over 1..=3: each about 1000 (binomial σ ≈ 26).
         for c in &counts[1..] {
             assert!((850..1150).contains(c), "{counts:?}");
+        }
+    }
+
+    /// The correlated GNSS error: its stationary σ and its lag-Δ autocorrelation e^(−Δ/τ),
+    /// over 200 simulated aircraft-hours at irregular report times.
+    #[test]
+    fn gnss_bias_is_gauss_markov_with_its_sigma_and_time_constant() {
+        let text = include_str!("../../fixtures/scenarios/airliner-nacp10.toml");
+        let scenario = crate::sim::scenario::Scenario::from_toml_str(text).unwrap();
+        let plan = scenario.plan().unwrap().remove(0);
+        let cfg_sigma = 4.0;
+        let tau = 60.0;
+        let mut cfg = test_config();
+        cfg.bias_sigma_m = cfg_sigma;
+        cfg.bias_tau_s = tau;
+        let (mut sum2, mut lag, mut n, mut n_lag) = (0.0, 0.0, 0usize, 0usize);
+        for a in 0..200 {
+            let mut e = Emitter::new(plan.clone(), a, 7, &cfg);
+            let mut rng = StdRng::seed_from_u64(a as u64);
+            let (mut t, mut grid) = (0.0, 0.0);
+            let mut prev: Option<(f64, f64)> = None;
+            loop {
+                let (be, bn) = e.step_bias(t, &cfg);
+                sum2 += be * be + bn * bn;
+                n += 2;
+                // Every 30 s exactly, the product with the value 30 s before (the process
+                // stepped at irregular 0.4-0.6 s in between).
+                if t == grid {
+                    if let Some((pe, pn)) = prev {
+                        lag += pe * be + pn * bn;
+                        n_lag += 2;
+                    }
+                    prev = Some((be, bn));
+                    grid += 30.0;
+                }
+                if t >= 3600.0 {
+                    break;
+                }
+                t = (t + rng.gen_range(0.4..0.6)).min(grid);
+            }
+        }
+        let sigma = (sum2 / n as f64).sqrt();
+        let rho = lag / n_lag as f64 / (sigma * sigma);
+        assert!((sigma - cfg_sigma).abs() < 0.15, "sigma {sigma}");
+        assert!((rho - (-30.0f64 / tau).exp()).abs() < 0.05, "rho {rho}");
+    }
+
+    fn test_config() -> Config {
+        Config {
+            end_tick: 0,
+            periods_s: [1.0; STREAMS],
+            jitter_s: 0.0,
+            pos_sigma_m: 0.0,
+            vel_sigma_mps: 0.0,
+            vz_sigma_mps: 0.0,
+            reception_probability: 1.0,
+            corrupt_frame_rate: 0.0,
+            nac_p: 10,
+            nac_v: 2,
+            velocity_reports: true,
+            declare_accuracy: true,
+            bias_sigma_m: 0.0,
+            bias_tau_s: 60.0,
+            position_offset_s: 0.0,
+            ref_lat_rad: 0.0,
+            ref_lon_rad: 0.0,
+            ref_m: 6.4e6,
+            ref_n_cos: 6.4e6,
+        }
+    }
+
+    /// Undeclared accuracy: no operational status, NACv 0 in every velocity message.
+    #[test]
+    fn undeclared_accuracy_sends_no_status_and_nacv_0() {
+        let dir = std::env::temp_dir().join(format!("adsb-undeclared-{}", std::process::id()));
+        let scenario = crate::sim::load_scenario("turns-undeclared").unwrap();
+        let summary = run(&scenario, 3, &dir).unwrap();
+        assert_eq!(summary.status_frames, 0);
+        assert!(
+            summary.velocity_frames > 1000,
+            "{}",
+            summary.velocity_frames
+        );
+        let beast = std::fs::read(&summary.beast_path).unwrap();
+        let frames = crate::eval::consistency::read_frames_at(
+            &summary.beast_path,
+            Some(crate::feed::Format::Beast),
+            1000.0,
+        )
+        .unwrap();
+        assert!(!beast.is_empty());
+        let mut velocities = 0;
+        for f in &frames {
+            let b = f.bytes();
+            // DF17, TC 19: NACv is ME bits 11-13, i.e. bits 43-45 of the frame.
+            if b.len() == 14 && b[0] >> 3 == 17 && b[4] >> 3 == 19 {
+                velocities += 1;
+                assert_eq!((b[5] >> 3) & 0b111, 0);
+            }
+        }
+        assert!(velocities > 1000);
+        for p in [&summary.beast_path, &summary.avr_path, &summary.truth_path] {
+            let _ = std::fs::remove_file(p);
         }
     }
 }

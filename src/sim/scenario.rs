@@ -84,6 +84,36 @@ pub struct Settings {
     /// (and a junk text line in the AVR output).
     #[serde(default)]
     pub junk_rate: f64,
+    /// Whether the aircraft declares its accuracy: `false` sends no operational status
+    /// (so no NACp reaches the receiver, which falls back on the position type code's NUCp)
+    /// and NACv 0 in its velocity messages, as older transponders do. `nac_p`/`nac_v` then
+    /// still set the noise. Default true.
+    #[serde(default = "default_true")]
+    pub declare_accuracy: bool,
+    /// White horizontal position noise per axis, m, instead of the NACp's σ (EPU/2.4477):
+    /// declared accuracy is a 95 % bound, real noise is often well inside it. 0..=10,000.
+    #[serde(default)]
+    pub position_noise_sigma_m: Option<f64>,
+    /// White horizontal velocity noise per axis, m/s, instead of the NACv's σ. 0..=100.
+    #[serde(default)]
+    pub velocity_noise_sigma_mps: Option<f64>,
+    /// Correlated GNSS position error: the stationary σ per horizontal axis of a
+    /// first-order Gauss–Markov process, m (0 = none, the default). 0..=10,000.
+    #[serde(default)]
+    pub gnss_bias_sigma_m: f64,
+    /// Its time constant τ, s: b(t + Δ) = e^(−Δ/τ) b(t) + σ √(1 − e^(−2Δ/τ)) w. Default 60 s
+    /// (GNSS errors wander over tens of seconds to minutes). 0.1..=100,000.
+    #[serde(default = "default_gnss_bias_tau_s")]
+    pub gnss_bias_tau_s: f64,
+    /// Position/velocity validity offset, s: the position a frame carries is the truth this
+    /// long before the frame is sent (a transponder's position latency; velocity reports
+    /// are current). Default 0. -2..=2.
+    #[serde(default)]
+    pub position_validity_offset_s: f64,
+}
+
+fn default_gnss_bias_tau_s() -> f64 {
+    60.0
 }
 
 fn default_report_period_s() -> f64 {
@@ -393,6 +423,30 @@ impl Scenario {
             1.0,
         )?;
         check_range("settings.junk_rate", s.junk_rate, 0.0, 1.0)?;
+        if let Some(v) = s.position_noise_sigma_m {
+            check_range("settings.position_noise_sigma_m", v, 0.0, 10_000.0)?;
+        }
+        if let Some(v) = s.velocity_noise_sigma_mps {
+            check_range("settings.velocity_noise_sigma_mps", v, 0.0, 100.0)?;
+        }
+        check_range(
+            "settings.gnss_bias_sigma_m",
+            s.gnss_bias_sigma_m,
+            0.0,
+            10_000.0,
+        )?;
+        check_range(
+            "settings.gnss_bias_tau_s",
+            s.gnss_bias_tau_s,
+            0.1,
+            100_000.0,
+        )?;
+        check_range(
+            "settings.position_validity_offset_s",
+            s.position_validity_offset_s,
+            -2.0,
+            2.0,
+        )?;
         check_positive("settings.report_period_s", s.report_period_s)?;
         check_positive("settings.truth_period_s", s.truth_period_s)?;
         check_range("settings.truth_period_s", s.truth_period_s, 1e-3, f64::MAX)?;
@@ -647,6 +701,12 @@ pub fn fleet(spec: &FleetSpec) -> Result<Scenario, SimError> {
             velocity_reports: true,
             corrupt_frame_rate: 0.0,
             junk_rate: 0.0,
+            declare_accuracy: true,
+            position_noise_sigma_m: None,
+            velocity_noise_sigma_mps: None,
+            gnss_bias_sigma_m: 0.0,
+            gnss_bias_tau_s: default_gnss_bias_tau_s(),
+            position_validity_offset_s: 0.0,
         },
         aircraft,
     })
@@ -751,6 +811,32 @@ segments = [
             (
                 MINIMAL.replace("reception_probability = 1.0", "reception_probability = 1.5"),
                 "settings.reception_probability: must be within [0, 1], got 1.5",
+            ),
+            (
+                MINIMAL.replace("jitter_s = 0.1", "jitter_s = 0.1\ngnss_bias_sigma_m = -1.0"),
+                "settings.gnss_bias_sigma_m: must be within [0, 10000], got -1",
+            ),
+            (
+                MINIMAL.replace("jitter_s = 0.1", "jitter_s = 0.1\ngnss_bias_tau_s = 0.0"),
+                "settings.gnss_bias_tau_s: must be within [0.1, 100000], got 0",
+            ),
+            (
+                MINIMAL.replace(
+                    "jitter_s = 0.1",
+                    "jitter_s = 0.1\nposition_validity_offset_s = 2.5",
+                ),
+                "settings.position_validity_offset_s: must be within [-2, 2], got 2.5",
+            ),
+            (
+                MINIMAL.replace("jitter_s = 0.1", "jitter_s = 0.1\nposition_noise_sigma_m = nan"),
+                "settings.position_noise_sigma_m: must be within [0, 10000], got NaN",
+            ),
+            (
+                MINIMAL.replace(
+                    "jitter_s = 0.1",
+                    "jitter_s = 0.1\nvelocity_noise_sigma_mps = 101.0",
+                ),
+                "settings.velocity_noise_sigma_mps: must be within [0, 100], got 101",
             ),
             (
                 MINIMAL.replace("jitter_s = 0.1", "jitter_s = 0.25"),

@@ -13,7 +13,9 @@ use std::collections::BTreeMap;
 use std::path::Path;
 
 fn groups(file: &str, rate_hz: f64, tracker: &str) -> BTreeMap<String, Group> {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures").join(file);
+    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("fixtures")
+        .join(file);
     let frames = consistency::read_frames_at(&path, None, rate_hz).unwrap();
     consistency::measure(&frames, &Config::default_config().unwrap(), tracker)
 }
@@ -46,9 +48,24 @@ fn afr34zg_is_cautious_and_rarely_flagged() {
             nis_dof.1,
         );
         // The track is right: 6-9 m from each frame's own decode; its sigma says 7-8 m.
-        within(&format!("{tracker} scatter"), all.median_scatter_m(), 5.0, 10.0);
-        within(&format!("{tracker} sigma"), all.median_pos_sigma_m(), 6.0, 9.0);
-        within(&format!("{tracker} NIS in band %"), all.nis_in_band_pct(), 0.0, 10.0);
+        within(
+            &format!("{tracker} scatter"),
+            all.median_scatter_m(),
+            5.0,
+            10.0,
+        );
+        within(
+            &format!("{tracker} sigma"),
+            all.median_pos_sigma_m(),
+            6.0,
+            9.0,
+        );
+        within(
+            &format!("{tracker} NIS in band %"),
+            all.nis_in_band_pct(),
+            0.0,
+            10.0,
+        );
     }
 }
 
@@ -57,7 +74,12 @@ fn lax_nacp10_is_overconfident() {
     let g = groups("lax-messages.avr.txt", 270.0, "hybrid");
     let n10 = &g["10"];
     assert_eq!(n10.airborne, 32_405);
-    within("NACp 10 diverging %", n10.airborne_diverging_pct(), 25.0, 45.0);
+    within(
+        "NACp 10 diverging %",
+        n10.airborne_diverging_pct(),
+        25.0,
+        45.0,
+    );
     within("NACp 10 NIS/dof", n10.median_nis_per_dof(), 2.0, 5.0);
     // The less an aircraft claims, the less often it is flagged.
     let pct = |k: &str| g[k].airborne_diverging_pct().unwrap();

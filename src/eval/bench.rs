@@ -90,10 +90,19 @@ pub fn track_frames(frames: &[RawFrame], config: &Config, algorithm: &str) -> Ru
     trace
 }
 
-/// Reads every frame of a recording.
+/// Reads every frame of a recording (untimed frames at 1,000 frames/s).
 pub fn read_frames(path: &Path, format: Option<Format>) -> Result<Vec<RawFrame>, EvalError> {
-    let mut reader =
-        FileReader::open(path, format, 1000.0).map_err(|e| EvalError::Other(e.to_string()))?;
+    read_frames_at(path, format, 1000.0)
+}
+
+/// Reads every frame of a recording, timing untimed frames at `nominal_rate_hz`.
+pub fn read_frames_at(
+    path: &Path,
+    format: Option<Format>,
+    nominal_rate_hz: f64,
+) -> Result<Vec<RawFrame>, EvalError> {
+    let mut reader = FileReader::open(path, format, nominal_rate_hz)
+        .map_err(|e| EvalError::Other(e.to_string()))?;
     let mut all = Vec::new();
     let mut batch = Vec::new();
     while reader

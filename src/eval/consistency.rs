@@ -19,37 +19,17 @@
 //!   components) inside the two-sided 95 % band of χ²(`nis_dof`).
 
 use super::bench::sync_pipeline;
-use super::io::EvalError;
 use crate::config::Config;
 use crate::decode::Icao;
-use crate::feed::replay::FileReader;
-use crate::feed::{Format, RawFrame};
+use crate::feed::RawFrame;
 use serde::Serialize;
 use std::collections::{BTreeMap, HashMap};
 use std::fmt::Write;
-use std::path::Path;
 
 /// A track younger than this is still converging: not "steady", s.
 pub const STEADY_AFTER_S: f64 = 30.0;
 
-/// Reads every frame of a recording, timing untimed frames at `nominal_rate_hz`.
-pub fn read_frames_at(
-    path: &Path,
-    format: Option<Format>,
-    nominal_rate_hz: f64,
-) -> Result<Vec<RawFrame>, EvalError> {
-    let mut reader = FileReader::open(path, format, nominal_rate_hz)
-        .map_err(|e| EvalError::Other(e.to_string()))?;
-    let mut all = Vec::new();
-    let mut batch = Vec::new();
-    while reader
-        .next_batch(&mut batch)
-        .map_err(|e| EvalError::Other(e.to_string()))?
-    {
-        all.extend_from_slice(&batch);
-    }
-    Ok(all)
-}
+pub use super::bench::read_frames_at;
 
 /// Counts and samples of one group (a NACp, or all).
 #[derive(Clone, Debug, Default, Serialize)]

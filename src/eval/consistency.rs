@@ -253,7 +253,8 @@ mod tests {
 
     #[test]
     fn afr34zg_flags_and_scatter_are_measured() {
-        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/afr34zg-cdg-tls.jsonl");
+        let path =
+            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/afr34zg-cdg-tls.jsonl");
         let frames = read_frames_at(&path, None, 1000.0).unwrap();
         let cfg = Config::default_config().unwrap();
         let g = measure(&frames, &cfg, "hybrid");

@@ -6,12 +6,10 @@
 
 mod common;
 
-use adsb_tracker::config::{Config, FeedConfig};
-use adsb_tracker::daemon::Source;
+use adsb_tracker::config::Config;
 use adsb_tracker::decode::{Icao, VerticalRateSource};
-use adsb_tracker::feed::Format;
 use adsb_tracker::sim::encode::{airborne_position, airborne_velocity, VelocityReport};
-use common::{beast, get_json, TestDaemon};
+use common::{beast, get_json, with_beast_feed, TestDaemon};
 use std::collections::BTreeMap;
 use std::io::Read;
 use std::net::SocketAddr;
@@ -237,17 +235,7 @@ struct Ingested {
 /// clients pull and stall on the track list and time the small endpoints meanwhile.
 /// Returns what was ingested and, under load, the probes' longest answer and counts.
 async fn ingest(load: bool) -> (Ingested, Option<LoadSeen>) {
-    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
-    let feed_addr = listener.local_addr().unwrap();
-    let mut config = config("");
-    config.feeds = vec![FeedConfig {
-        name: "fleet".into(),
-        addr: feed_addr.to_string(),
-        format: Format::Beast,
-        silence_timeout_s: 120.0,
-    }];
-    let d = TestDaemon::start(config.clone(), Source::Feeds(config.feeds.clone()), None).await;
-    let (mut sock, _) = listener.accept().await.unwrap();
+    let (d, mut sock) = with_beast_feed(config(""), "fleet", 120.0).await;
     let frames = fleet();
     let total = frames.len() as u64;
     let stop = Arc::new(AtomicBool::new(false));

@@ -8,13 +8,11 @@
 
 mod common;
 
-use adsb_tracker::config::{Config, FeedConfig};
-use adsb_tracker::daemon::Source;
+use adsb_tracker::config::Config;
 use adsb_tracker::decode::Icao;
 use adsb_tracker::decode::VerticalRateSource;
-use adsb_tracker::feed::Format;
 use adsb_tracker::sim::encode::{airborne_position, airborne_velocity, VelocityReport};
-use common::{beast, get_json, TestDaemon};
+use common::{beast, get_json, with_beast_feed};
 use std::time::{Duration, Instant};
 use tokio::io::AsyncWriteExt;
 
@@ -59,15 +57,9 @@ fn wave(w: u32) -> Vec<u8> {
     out
 }
 
+/// Resident set size of this process, KiB.
 fn rss_kib() -> u64 {
-    std::fs::read_to_string("/proc/self/status")
-        .ok()
-        .and_then(|s| {
-            s.lines()
-                .find(|l| l.starts_with("VmRSS"))
-                .and_then(|l| l.split_whitespace().nth(1)?.parse().ok())
-        })
-        .unwrap_or(0)
+    common::rss_bytes() / 1024
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -76,20 +68,11 @@ async fn churn_keeps_memory_and_tables_flat() {
         .ok()
         .and_then(|v| v.parse().ok())
         .unwrap_or(40);
-    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
-    let feed_addr = listener.local_addr().unwrap();
-    let mut config = Config::from_toml_str(&format!(
+    let config = Config::from_toml_str(&format!(
         "[tracker]\nretire_after_s = {RETIRE_S}\nalgorithm = \"hybrid\"\n"
     ))
     .unwrap();
-    config.feeds = vec![FeedConfig {
-        name: "waves".into(),
-        addr: feed_addr.to_string(),
-        format: Format::Beast,
-        silence_timeout_s: 60.0,
-    }];
-    let d = TestDaemon::start(config.clone(), Source::Feeds(config.feeds.clone()), None).await;
-    let (mut sock, _) = listener.accept().await.unwrap();
+    let (d, mut sock) = with_beast_feed(config, "waves", 60.0).await;
 
     let mut frames_sent = 0u64;
     let mut rss_after = Vec::new();

@@ -4,6 +4,8 @@
 //! of frames off by up to an hour, 1e308 / -1e308) and the tracks must come out as from the
 //! clean recording.
 
+mod common;
+
 use adsb_tracker::config::Config;
 use adsb_tracker::daemon::registry::TrackState;
 use adsb_tracker::eval::bench::sync_pipeline;
@@ -139,17 +141,7 @@ fn beast(lines: &[(f64, String)], counters: &[u64]) -> Vec<u8> {
         } else {
             &data[..]
         };
-        out.push(0x1a);
-        out.push(if data.len() == 7 { b'2' } else { b'3' });
-        let mut body = c.to_be_bytes()[2..].to_vec();
-        body.push(0x80);
-        body.extend_from_slice(data);
-        for b in body {
-            out.push(b);
-            if b == 0x1a {
-                out.push(0x1a);
-            }
-        }
+        common::beast_at_ticks(c, data, &mut out);
     }
     out
 }

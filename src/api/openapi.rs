@@ -12,7 +12,9 @@
 
 use super::ErrorBody;
 use crate::daemon::registry::TrackState;
-use axum::Json;
+use axum::body::Bytes;
+use axum::http::{header, HeaderValue};
+use axum::response::{IntoResponse, Response};
 use serde::Serialize;
 use serde_json::{json, Value};
 use std::sync::LazyLock;
@@ -58,9 +60,18 @@ pub struct ApiDoc;
 /// This document.
 #[utoipa::path(get, path = "/api/v1/openapi.json", tag = "daemon",
     responses((status = 200, description = "The OpenAPI 3.1 document", body = Object)))]
-pub(super) async fn openapi_json() -> Json<Value> {
-    static DOCUMENT: LazyLock<Value> = LazyLock::new(document);
-    Json(DOCUMENT.clone())
+pub(super) async fn openapi_json() -> Response {
+    // Built and serialised once: the document does not change while the daemon runs.
+    static DOCUMENT: LazyLock<Bytes> =
+        LazyLock::new(|| Bytes::from(serde_json::to_vec(&document()).unwrap_or_default()));
+    (
+        [(
+            header::CONTENT_TYPE,
+            HeaderValue::from_static("application/json"),
+        )],
+        DOCUMENT.clone(),
+    )
+        .into_response()
 }
 
 /// The OpenAPI document: utoipa's, with the parameters' patterns and the events' schema.

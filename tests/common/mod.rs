@@ -315,15 +315,40 @@ pub fn rss_bytes() -> u64 {
 
 /// One Beast long frame at feed time `t_s` (12 MHz counter), 0x1a escaped.
 pub fn beast(t_s: f64, frame: &[u8; 14], out: &mut Vec<u8>) {
-    let ticks = (t_s * 12e6) as u64;
-    out.extend_from_slice(&[0x1a, b'3']);
+    beast_at_ticks((t_s * 12e6) as u64, frame, out);
+}
+
+/// One Beast frame (type '2' for 7 bytes, '3' for 14) at counter `ticks` (12 MHz), signal
+/// 0x80, 0x1a escaped.
+pub fn beast_at_ticks(ticks: u64, data: &[u8], out: &mut Vec<u8>) {
+    out.push(0x1a);
+    out.push(if data.len() == 7 { b'2' } else { b'3' });
     let mut body = ticks.to_be_bytes()[2..].to_vec();
     body.push(0x80);
-    body.extend_from_slice(frame);
+    body.extend_from_slice(data);
     for b in body {
         out.push(b);
         if b == 0x1a {
             out.push(0x1a);
         }
     }
+}
+
+/// The daemon reading a Beast feed (`[[feeds]]` named `name`) from a listener of the
+/// test's, and the test's end of that connection.
+pub async fn with_beast_feed(
+    mut config: Config,
+    name: &str,
+    silence_timeout_s: f64,
+) -> (TestDaemon, tokio::net::TcpStream) {
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+    config.feeds = vec![adsb_tracker::config::FeedConfig {
+        name: name.into(),
+        addr: listener.local_addr().unwrap().to_string(),
+        format: adsb_tracker::feed::Format::Beast,
+        silence_timeout_s,
+    }];
+    let d = TestDaemon::start(config.clone(), Source::Feeds(config.feeds), None).await;
+    let (sock, _) = listener.accept().await.unwrap();
+    (d, sock)
 }

@@ -5,47 +5,8 @@
 mod common;
 
 use adsb_tracker::config::Config;
-use common::TestDaemon;
-use std::collections::BTreeMap;
-use std::net::SocketAddr;
-use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use common::{get_with, TestDaemon};
 
-/// A response: status, headers (lower-case names), body.
-struct Reply {
-    status: u16,
-    headers: BTreeMap<String, String>,
-    body: Vec<u8>,
-}
-
-async fn request(addr: SocketAddr, path: &str, extra: &str) -> Reply {
-    let mut s = tokio::net::TcpStream::connect(addr).await.unwrap();
-    let req = format!("GET {path} HTTP/1.1\r\nHost: test\r\nConnection: close\r\n{extra}\r\n");
-    s.write_all(req.as_bytes()).await.unwrap();
-    let mut buf = Vec::new();
-    s.read_to_end(&mut buf).await.unwrap();
-    let split = buf.windows(4).position(|w| w == b"\r\n\r\n").unwrap();
-    let head = String::from_utf8(buf[..split].to_vec()).unwrap();
-    let mut lines = head.lines();
-    let status = lines
-        .next()
-        .unwrap()
-        .split(' ')
-        .nth(1)
-        .unwrap()
-        .parse()
-        .unwrap();
-    let headers = lines
-        .filter_map(|l| l.split_once(':'))
-        .map(|(k, v)| (k.trim().to_ascii_lowercase(), v.trim().to_string()))
-        .collect();
-    Reply {
-        status,
-        headers,
-        body: buf[split + 4..].to_vec(),
-    }
-}
-
-/// The `assets/...` paths a text refers to (in quotes), and `./x.js` imports as assets.
 fn referenced_assets(text: &str) -> Vec<String> {
     let mut out = Vec::new();
     for part in text.split(['"', '`']) {
@@ -70,7 +31,7 @@ async fn the_page_and_every_file_it_loads_are_served_from_the_binary() {
     .unwrap();
     let d = TestDaemon::replay("us-short-flights.csv", config).await;
 
-    let page = request(d.addr, "/", "").await;
+    let page = get_with(d.addr, "/", &[]).await;
     assert_eq!(page.status, 200);
     assert_eq!(page.headers["content-type"], "text/html; charset=utf-8");
     assert_eq!(page.headers["cache-control"], "no-cache");
@@ -82,12 +43,7 @@ async fn the_page_and_every_file_it_loads_are_served_from_the_binary() {
          \"prediction_horizons_s\":[30.0,60.0,120.0]}"
     ));
     // The page revalidated: 304, no body.
-    let again = request(
-        d.addr,
-        "/",
-        &format!("If-None-Match: {}\r\n", page.headers["etag"]),
-    )
-    .await;
+    let again = get_with(d.addr, "/", &[("If-None-Match", &page.headers["etag"])]).await;
     assert_eq!(again.status, 304);
     assert!(again.body.is_empty());
 
@@ -98,7 +54,7 @@ async fn the_page_and_every_file_it_loads_are_served_from_the_binary() {
         if seen.contains(&path) {
             continue;
         }
-        let r = request(d.addr, &format!("/assets/{path}"), "").await;
+        let r = get_with(d.addr, &format!("/assets/{path}"), &[]).await;
         assert_eq!(r.status, 200, "/assets/{path}");
         let want = match path.rsplit_once('.').map(|(_, e)| e) {
             Some("js") => "text/javascript; charset=utf-8",
@@ -112,10 +68,10 @@ async fn the_page_and_every_file_it_loads_are_served_from_the_binary() {
         assert_eq!(r.headers["x-content-type-options"], "nosniff");
         let etag = &r.headers["etag"];
         assert!(etag.len() == 18 && etag.starts_with('"'), "{etag}");
-        let cached = request(
+        let cached = get_with(
             d.addr,
             &format!("/assets/{path}"),
-            &format!("If-None-Match: {etag}\r\n"),
+            &[("If-None-Match", etag)],
         )
         .await;
         assert_eq!(cached.status, 304, "/assets/{path}");
@@ -153,7 +109,7 @@ async fn the_page_and_every_file_it_loads_are_served_from_the_binary() {
     );
 
     // The world outline is the vendored TopoJSON, byte for byte.
-    let land = request(d.addr, "/assets/vendor/world-atlas/land-110m.json", "").await;
+    let land = get_with(d.addr, "/assets/vendor/world-atlas/land-110m.json", &[]).await;
     let vendored = std::fs::read(concat!(
         env!("CARGO_MANIFEST_DIR"),
         "/src/api/web/vendor/world-atlas/land-110m.json"
@@ -166,15 +122,15 @@ async fn the_page_and_every_file_it_loads_are_served_from_the_binary() {
 
     // Licences are served with the files.
     for lic in ["leaflet", "topojson-client", "world-atlas"] {
-        let r = request(d.addr, &format!("/assets/vendor/{lic}/LICENSE"), "").await;
+        let r = get_with(d.addr, &format!("/assets/vendor/{lic}/LICENSE"), &[]).await;
         assert_eq!(r.status, 200);
         assert!(String::from_utf8(r.body).unwrap().contains("Copyright"));
     }
 
-    let missing = request(d.addr, "/assets/nope.js", "").await;
+    let missing = get_with(d.addr, "/assets/nope.js", &[]).await;
     assert_eq!(missing.status, 404);
     assert_eq!(missing.headers["content-type"], "application/json");
-    let table = request(d.addr, "/table", "").await;
+    let table = get_with(d.addr, "/table", &[]).await;
     assert_eq!(table.status, 200);
     assert!(String::from_utf8(table.body)
         .unwrap()

@@ -331,6 +331,11 @@ async fn main() -> Result<()> {
             let source = app::serve_source(&mut cfg)?;
             tracing::info!("serving on http://{}", listener.local_addr()?);
             install_signals(shutdown.clone());
+            if cfg.cluster.is_some() {
+                // `[cluster]`: this process's roles over NATS (docs/scale-out.md).
+                adsb_tracker::cluster::run(cfg, source, Some(listener), shutdown).await?;
+                return Ok(());
+            }
             app::run(
                 cfg,
                 RunOptions {

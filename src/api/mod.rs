@@ -368,6 +368,10 @@ struct Health {
     ingest_lag_s: f64,
     tracks: usize,
     feeds: Vec<crate::feed::tcp::FeedStatusSnapshot>,
+    /// A cluster node's roles, connection, partitions and counters (absent in one process).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    #[schema(required = false)]
+    cluster: Option<crate::cluster::ClusterSnapshot>,
 }
 
 /// 200 while the daemon can serve fresh data; 503 while a live feed is down or silent, or
@@ -386,8 +390,12 @@ async fn healthz(State(shared): State<Shared>) -> Response {
         .stats
         .pipeline_failed
         .load(std::sync::atomic::Ordering::Acquire);
-    let degraded = failed || feeds_down || lag_s > shared.stats.max_lag_s();
+    let cluster = shared.stats.cluster.as_ref().map(|c| c.snapshot());
+    // A cluster node cut off from NATS serves nothing fresh.
+    let bus_down = cluster.as_ref().is_some_and(|c| !c.connected);
+    let degraded = failed || feeds_down || bus_down || lag_s > shared.stats.max_lag_s();
     let body = Health {
+        cluster,
         status: if degraded { "degraded" } else { "ok" },
         feed_time: shared.stats.feed_time_s(),
         ingest_lag_s: lag_s,

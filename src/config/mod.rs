@@ -5,6 +5,8 @@ use crate::feed::Format;
 use serde::Deserialize;
 use std::path::{Path, PathBuf};
 
+mod cluster;
+pub use cluster::{ClusterConfig, Role, MAX_PARTITIONS};
 mod map;
 pub use map::MapConfig;
 mod output;
@@ -132,6 +134,10 @@ pub struct Config {
     pub map: MapConfig,
     /// `[history]`: the per-aircraft trails.
     pub history: HistoryConfig,
+    /// `[cluster]`: this process's part in a cluster over NATS JetStream; absent, the
+    /// daemon is one process with no bus.
+    #[serde(default)]
+    pub cluster: Option<ClusterConfig>,
 }
 
 /// How the pipeline behaves under load (`[pipeline]`).
@@ -493,6 +499,9 @@ impl Config {
 
         self.output.validate()?;
         self.map.validate()?;
+        if let Some(c) = &self.cluster {
+            c.validate()?;
+        }
         self.tracker.validate_tuning()
     }
 }

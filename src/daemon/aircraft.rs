@@ -486,6 +486,9 @@ pub struct AircraftBatch {
     /// Permits of the frame budget this batch holds ([`Stats::reserve_frames`]), given back
     /// once it is processed.
     pub permits: u32,
+    /// The feed batch's completion ([`FrameBatch::done`](crate::feed::tcp::FrameBatch)),
+    /// released when this share of it is processed and dropped.
+    pub done: Option<Arc<crate::feed::tcp::Completion>>,
 }
 
 /// The task of one aircraft: receives batches of its messages, updates, publishes.

@@ -150,6 +150,9 @@ pub struct Daemon {
     outputs_stop: CancellationToken,
     writer: Option<tokio::task::JoinHandle<Result<(), DaemonError>>>,
     outputs: Option<crate::output::Outputs>,
+    /// What routers and aircraft tasks share; kept for [`Daemon::spawn_router`] until
+    /// [`Daemon::finished`] lets it go (the update writer ends with its last holder).
+    ctx: Option<Arc<TaskContext>>,
     lag_monitor: tokio::task::JoinHandle<()>,
     router: tokio::task::JoinHandle<()>,
     feed_tasks: tokio::task::JoinSet<()>,
@@ -177,12 +180,24 @@ impl Daemon {
         opts: RunOptions,
         shutdown: CancellationToken,
     ) -> Result<Self, DaemonError> {
+        let stats = Arc::new(Stats::for_pipeline(
+            config.pipeline.max_queued_frames,
+            config.pipeline.max_lag_s,
+        ));
+        Self::start_with_stats(config, opts, shutdown, stats).await
+    }
+
+    /// [`Daemon::start`] counting into `stats` (a cluster node's one set of counters, which
+    /// its other roles share).
+    pub async fn start_with_stats(
+        config: Config,
+        opts: RunOptions,
+        shutdown: CancellationToken,
+        stats: Arc<Stats>,
+    ) -> Result<Self, DaemonError> {
         let shared = Shared {
             registry: Arc::new(Registry::with_history(config.history)),
-            stats: Arc::new(Stats::for_pipeline(
-                config.pipeline.max_queued_frames,
-                config.pipeline.max_lag_s,
-            )),
+            stats,
             config: Arc::new(config.clone()),
             feed: Arc::new(UpdateFeed::default()),
             shutdown: shutdown.clone(),
@@ -245,81 +260,22 @@ impl Daemon {
         let lag_monitor = tokio::spawn(monitor_lag(shared.stats.clone(), pipeline_stop.clone()));
 
         let (batch_tx, batch_rx) = mpsc::channel::<FrameBatch>(FEED_CHANNEL_BATCHES);
-        let router_cfg = RouterConfig {
-            decoder: DecoderConfig {
-                fix_single_bit: config.decode.fix_single_bit,
-                recent_address_s: config.decode.recent_address_s,
-            },
-            aircraft: AircraftConfig {
-                cpr: CprConfig {
-                    pair_window_s: config.cpr.pair_window_s,
-                    max_speed_mps: config.cpr.max_speed_mps,
-                    max_surface_speed_mps: config.cpr.max_surface_speed_mps,
-                    receiver: config.receiver.map(|r| (r.lat_deg, r.lon_deg)),
-                    ..CprConfig::default()
-                },
-                tracker: build_tracker,
-                tracker_config: config.tracker.clone(),
-            },
-            retire_after_s: config.tracker.retire_after_s,
-            idle: Duration::try_from_secs_f64(config.tracker.retire_after_s)
-                .unwrap_or(Duration::MAX),
-            channel_capacity: config.tracker.channel_capacity,
-            // A replay always waits: an evaluation must see every frame.
-            overload: if matches!(opts.source, Source::Replay(_)) {
-                router::Overload::Backpressure
-            } else {
-                config.pipeline.overload
-            },
+        // A replay always waits: an evaluation must see every frame.
+        let overload = if matches!(opts.source, Source::Replay(_)) {
+            router::Overload::Backpressure
+        } else {
+            config.pipeline.overload
         };
-        // Unconstrained: the router sends one message per aircraft per batch, a thousand at
-        // fleet scale, and tokio's cooperative budget (128 operations) made it yield to the
-        // back of the run queue several times a batch: 35 % more CPU for the same work. It
-        // still yields whenever it waits (an empty feed channel, a full aircraft channel).
-        let router = tokio::spawn(tokio::task::unconstrained(router::run_router(
-            batch_rx,
-            router_cfg,
-            ctx.clone(),
-        )));
-        drop(ctx);
+        let router = spawn_router(batch_rx, router_config(&config, overload), ctx.clone());
 
         // The feeds.
-        let mut feed_tasks = tokio::task::JoinSet::new();
-        let mut replay_task = None;
-        match &opts.source {
-            Source::Feeds(feeds) => {
-                for f in feeds {
-                    let feed = TcpFeed {
-                        name: f.name.clone(),
-                        addr: f.addr.clone(),
-                        format: f.format,
-                        nominal_rate_hz: config.decode.nominal_rate_hz,
-                        silence_timeout_s: f.silence_timeout_s,
-                    };
-                    let status = Arc::new(FeedStatus::with_silence_timeout(
-                        f.name.as_str(),
-                        feed.silence_timeout(),
-                    ));
-                    shared.stats.add_feed(status.clone());
-                    feed_tasks.spawn(crate::feed::tcp::run_client(
-                        feed,
-                        batch_tx.clone(),
-                        status,
-                        pipeline_stop.clone(),
-                    ));
-                }
-            }
-            Source::Replay(replay) => {
-                let replay = replay.clone();
-                let tx = batch_tx.clone();
-                let stop = pipeline_stop.clone();
-                let progress = Arc::new(ReplayProgress::default());
-                replay_task = Some(tokio::task::spawn_blocking(move || {
-                    source::run_replay(&replay, &tx, &progress, &stop)
-                }));
-            }
-        }
-        drop(batch_tx);
+        let (feed_tasks, replay_task) = spawn_source(
+            &opts.source,
+            &config,
+            &shared.stats,
+            batch_tx,
+            &pipeline_stop,
+        );
         Ok(Self {
             shared,
             opts,
@@ -327,6 +283,7 @@ impl Daemon {
             outputs_stop,
             writer,
             outputs,
+            ctx: Some(ctx),
             lag_monitor,
             router,
             feed_tasks,
@@ -339,6 +296,138 @@ impl Daemon {
         &self.shared
     }
 
+    /// What starts more routers into this daemon's registry: a cluster track node runs one
+    /// per partition it owns ([`RouterSpawner`]). `None` once the daemon is finishing.
+    pub fn router_spawner(&self) -> Option<RouterSpawner> {
+        Some(RouterSpawner {
+            config: self.shared.config.clone(),
+            ctx: self.ctx.clone()?,
+        })
+    }
+}
+
+/// Starts routers, each with its own decoder, aircraft and feed clock, publishing into one
+/// daemon's registry. A cluster track node runs one per partition, so that each partition
+/// keeps its own feed clock (a partition replayed from its start after a takeover must not
+/// look 'silent' against the others and have its aircraft retired). Always lossless
+/// (backpressure): a bus message is acknowledged only once processed.
+#[derive(Clone)]
+pub struct RouterSpawner {
+    config: Arc<Config>,
+    ctx: Arc<TaskContext>,
+}
+
+impl RouterSpawner {
+    /// A router on `rx`: it ends when `rx` closes (its aircraft drain first) or when the
+    /// daemon stops.
+    pub fn spawn(&self, rx: mpsc::Receiver<FrameBatch>) -> tokio::task::JoinHandle<()> {
+        spawn_router(
+            rx,
+            router_config(&self.config, router::Overload::Backpressure),
+            self.ctx.clone(),
+        )
+    }
+
+    /// Cancelled when the pipeline stops: its aircraft tasks then drop what they had not
+    /// processed yet, so nothing released after it may be acknowledged.
+    pub fn stopping(&self) -> &CancellationToken {
+        &self.ctx.shutdown
+    }
+}
+
+/// The router's settings from the configuration.
+fn router_config(config: &Config, overload: router::Overload) -> RouterConfig {
+    RouterConfig {
+        decoder: DecoderConfig {
+            fix_single_bit: config.decode.fix_single_bit,
+            recent_address_s: config.decode.recent_address_s,
+        },
+        aircraft: AircraftConfig {
+            cpr: CprConfig {
+                pair_window_s: config.cpr.pair_window_s,
+                max_speed_mps: config.cpr.max_speed_mps,
+                max_surface_speed_mps: config.cpr.max_surface_speed_mps,
+                receiver: config.receiver.map(|r| (r.lat_deg, r.lon_deg)),
+                ..CprConfig::default()
+            },
+            tracker: build_tracker,
+            tracker_config: config.tracker.clone(),
+        },
+        retire_after_s: config.tracker.retire_after_s,
+        idle: Duration::try_from_secs_f64(config.tracker.retire_after_s).unwrap_or(Duration::MAX),
+        channel_capacity: config.tracker.channel_capacity,
+        overload,
+    }
+}
+
+/// Spawns a router.
+fn spawn_router(
+    rx: mpsc::Receiver<FrameBatch>,
+    cfg: RouterConfig,
+    ctx: Arc<TaskContext>,
+) -> tokio::task::JoinHandle<()> {
+    // Unconstrained: the router sends one message per aircraft per batch, a thousand at
+    // fleet scale, and tokio's cooperative budget (128 operations) made it yield to the
+    // back of the run queue several times a batch: 35 % more CPU for the same work. It
+    // still yields whenever it waits (an empty feed channel, a full aircraft channel).
+    tokio::spawn(tokio::task::unconstrained(router::run_router(rx, cfg, ctx)))
+}
+
+/// The tasks reading a source.
+type SourceTasks = (
+    tokio::task::JoinSet<()>,
+    Option<tokio::task::JoinHandle<Result<crate::feed::ParseStats, crate::feed::FeedError>>>,
+);
+
+/// Starts the source's readers, sending into `batch_tx`: a TCP client per feed (its status
+/// registered in `stats`), or the replay on a blocking thread. A cluster ingest node reads
+/// its source with the same code.
+pub fn spawn_source(
+    source: &Source,
+    config: &Config,
+    stats: &Arc<Stats>,
+    batch_tx: mpsc::Sender<FrameBatch>,
+    pipeline_stop: &CancellationToken,
+) -> SourceTasks {
+    let mut feed_tasks = tokio::task::JoinSet::new();
+    let mut replay_task = None;
+    match source {
+        Source::Feeds(feeds) => {
+            for f in feeds {
+                let feed = TcpFeed {
+                    name: f.name.clone(),
+                    addr: f.addr.clone(),
+                    format: f.format,
+                    nominal_rate_hz: config.decode.nominal_rate_hz,
+                    silence_timeout_s: f.silence_timeout_s,
+                };
+                let status = Arc::new(FeedStatus::with_silence_timeout(
+                    f.name.as_str(),
+                    feed.silence_timeout(),
+                ));
+                stats.add_feed(status.clone());
+                feed_tasks.spawn(crate::feed::tcp::run_client(
+                    feed,
+                    batch_tx.clone(),
+                    status,
+                    pipeline_stop.clone(),
+                ));
+            }
+        }
+        Source::Replay(replay) => {
+            let replay = replay.clone();
+            let tx = batch_tx.clone();
+            let stop = pipeline_stop.clone();
+            let progress = Arc::new(ReplayProgress::default());
+            replay_task = Some(tokio::task::spawn_blocking(move || {
+                source::run_replay(&replay, &tx, &progress, &stop)
+            }));
+        }
+    }
+    drop(batch_tx);
+    (feed_tasks, replay_task)
+}
+impl Daemon {
     /// Waits until shutdown (or, with `exit_at_end`, the end of a replay), then for every
     /// task. A pipeline task that dies first cancels the shutdown token (everything else
     /// stops too) and is the error returned.
@@ -350,11 +439,14 @@ impl Daemon {
             outputs_stop,
             writer,
             outputs,
+            ctx,
             lag_monitor,
             router,
             mut feed_tasks,
             replay_task,
         } = self;
+        // Routers and aircraft tasks hold their own; the update writer ends with the last.
+        drop(ctx);
         let shutdown = shared.shutdown.clone();
         let mut replay_stats = None;
         if let Some(task) = replay_task {

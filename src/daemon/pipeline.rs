@@ -87,6 +87,15 @@ impl SyncPipeline {
         Some((d.icao, updated, cpu_ns, fix_before))
     }
 
+    /// Every aircraft's snapshot now, with predictions at `horizons_s`.
+    pub fn published(&mut self, horizons_s: &[f64]) -> Vec<super::registry::Published> {
+        let counts = &mut self.counts;
+        self.aircraft
+            .values_mut()
+            .filter_map(|ac| ac.published(horizons_s, counts))
+            .collect()
+    }
+
     /// Counters so far (positions, updates, errors).
     pub fn stats(&self) -> &Stats {
         &self.stats

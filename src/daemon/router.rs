@@ -201,7 +201,7 @@ pub async fn run_router(
         // every aircraft heard in this batch its messages.
         let mut stopping = false;
         for mut old in retiring.drain(..) {
-            let sent = deliver(&mut old, batch.arrived, now_s, &cfg, &ctx, &mut drops).await;
+            let sent = deliver(&mut old, &batch, now_s, &cfg, &ctx, &mut drops).await;
             if sent == Delivery::Shutdown {
                 stopping = true;
                 break;
@@ -214,7 +214,7 @@ pub async fn run_router(
             let Some(handle) = aircraft.get_mut(&icao) else {
                 continue;
             };
-            match deliver(handle, batch.arrived, now_s, &cfg, &ctx, &mut drops).await {
+            match deliver(handle, &batch, now_s, &cfg, &ctx, &mut drops).await {
                 Delivery::Sent => {}
                 Delivery::Shutdown => stopping = true,
                 Delivery::Gone => {
@@ -254,13 +254,15 @@ enum Delivery {
 /// dropping them (counted) when there is none.
 async fn deliver(
     handle: &mut Handle,
-    arrived: Instant,
+    batch: &FrameBatch,
     now_s: f64,
     cfg: &RouterConfig,
     ctx: &TaskContext,
     drops: &mut DropLog,
 ) -> Delivery {
     let stats = &ctx.stats;
+    let arrived = batch.arrived;
+    let done = batch.done.clone();
     let msgs = std::mem::take(&mut handle.pending);
     handle.last_batch_len = msgs.len();
     let last = msgs.last().map_or(now_s, |d| d.time_s);
@@ -273,7 +275,7 @@ async fn deliver(
             _ = ctx.shutdown.cancelled() => return Delivery::Shutdown,
             r = async {
                 let permits = stats.reserve_frames(n).await;
-                handle.tx.send(AircraftBatch { msgs, arrived, permits }).await
+                handle.tx.send(AircraftBatch { msgs, arrived, permits, done }).await
             } => r.map_err(|e| mpsc::error::TrySendError::Closed(e.0)),
         },
         Overload::Drop => match stats.try_reserve_frames(n) {
@@ -281,11 +283,13 @@ async fn deliver(
                 msgs,
                 arrived,
                 permits,
+                done,
             }),
             None => Err(mpsc::error::TrySendError::Full(AircraftBatch {
                 msgs,
                 arrived,
                 permits: 0,
+                done,
             })),
         },
     };

@@ -176,6 +176,7 @@ pub fn run_replay(
                     feed: feed_name.clone(),
                     frames: std::mem::replace(&mut frames, Vec::with_capacity(8192)),
                     arrived: Instant::now(),
+                    done: None,
                 };
                 if tx.blocking_send(batch).is_err() {
                     return Ok(reader.stats().clone());
@@ -249,6 +250,7 @@ fn send_paced(
             arrived: start_wall
                 .checked_add(due(first.time_s))
                 .unwrap_or_else(Instant::now),
+            done: None,
         };
         if tx.blocking_send(batch).is_err() {
             return;

@@ -83,6 +83,8 @@ pub struct Stats {
     pub outputs: Arc<crate::output::OutputStats>,
     /// The event stream's counters (`GET /api/v1/stream`).
     pub stream: Arc<StreamStats>,
+    /// A cluster node's counters (`[cluster]`), absent in one process.
+    pub cluster: Option<Arc<crate::cluster::ClusterStats>>,
 }
 
 /// The HTTP server's connection counters (`/api/v1/stats` `http`, `/metrics` `adsb_http_*`).
@@ -250,6 +252,7 @@ impl Stats {
             http: Arc::new(HttpStats::default()),
             outputs: Arc::new(crate::output::OutputStats::default()),
             stream: Arc::new(StreamStats::default()),
+            cluster: None,
             registry: Registry::default(),
         };
         registry.register(
@@ -371,6 +374,18 @@ impl Stats {
         s.outputs.register(&mut registry);
         s.stream.register(&mut registry);
         Self { registry, ..s }
+    }
+
+    /// [`Stats::for_pipeline`] of a cluster node, with its cluster counters.
+    pub fn for_cluster(
+        max_queued_frames: usize,
+        max_lag_s: f64,
+        cluster: Arc<crate::cluster::ClusterStats>,
+    ) -> Self {
+        let mut s = Self::for_pipeline(max_queued_frames, max_lag_s);
+        cluster.register(&mut s.registry);
+        s.cluster = Some(cluster);
+        s
     }
 
     /// The permits a batch of `n` frames takes: `n`, at most the whole budget (so one huge
@@ -543,6 +558,7 @@ impl Stats {
             http: self.http.snapshot(),
             outputs: self.outputs.snapshot(),
             stream: self.stream.snapshot(),
+            cluster: self.cluster.as_ref().map(|c| c.snapshot()),
         }
     }
 }
@@ -647,6 +663,10 @@ pub struct StatsSnapshot {
     pub outputs: crate::output::OutputStatsSnapshot,
     /// The event stream's clients.
     pub stream: StreamStatsSnapshot,
+    /// A cluster node's counters (absent in one process).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    #[schema(required = false)]
+    pub cluster: Option<crate::cluster::ClusterSnapshot>,
 }
 
 /// Counters an aircraft (or the synchronous pipeline) keeps locally and flushes into the

@@ -57,6 +57,40 @@ pub struct FrameBatch {
     /// When the frames were read (a paced replay: when they were due). The ingest lag and
     /// the arrival-to-publication latency are measured from here.
     pub arrived: Instant,
+    /// Signalled once every aircraft has processed its messages of this batch (held by the
+    /// batch and by each aircraft's share of it): how a cluster track node acknowledges a
+    /// bus message only after its aircraft processed it. `None` for feeds and replays.
+    pub done: Option<Arc<Completion>>,
+}
+
+/// Fires once when the last holder lets go: the router hands a clone to every aircraft that
+/// gets messages of the batch, so the drop of the last clone means all of them processed
+/// theirs (or were retired, or shutdown came).
+#[derive(Debug)]
+pub struct Completion(Option<tokio::sync::oneshot::Sender<()>>);
+
+impl Completion {
+    /// A completion and the receiver that resolves when its last clone is dropped.
+    pub fn new() -> (Arc<Self>, tokio::sync::oneshot::Receiver<()>) {
+        let (tx, rx) = tokio::sync::oneshot::channel();
+        (Arc::new(Self(Some(tx))), rx)
+    }
+}
+
+impl Drop for Completion {
+    fn drop(&mut self) {
+        if let Some(tx) = self.0.take() {
+            // The receiver gone (the node stopping) is no one's concern.
+            let _ = tx.send(());
+        }
+    }
+}
+
+/// Two batches are equal whatever their completion token (one is never compared).
+impl PartialEq for Completion {
+    fn eq(&self, _: &Self) -> bool {
+        true
+    }
 }
 
 /// Reconnection and timeout policy.
@@ -405,6 +439,7 @@ impl Connection<'_> {
             feed: Arc::clone(self.feed),
             frames,
             arrived: Instant::now(),
+            done: None,
         }
     }
 

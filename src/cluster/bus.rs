@@ -66,7 +66,7 @@ pub enum TrackChange {
 
 /// A partition's consumer: its next messages, in order, and their acknowledgement.
 pub trait PartitionConsumer: Send + 'static {
-    type Handle: Send + 'static;
+    type Handle: Send + Sync + 'static;
     /// Up to `max` messages: waits for the first, takes the rest only if already there.
     fn next_batch(
         &mut self,

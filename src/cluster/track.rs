@@ -219,16 +219,15 @@ pub async fn run<B: Bus>(
     let _ = publisher.await;
 }
 
-/// Decodes a batch of deliveries into frames, dropping duplicates (counted).
+/// Decodes a delivery's pack into `frames`, dropping duplicates (counted).
 fn frames_of<H>(
-    batch: &[Delivery<H>],
+    d: &Delivery<H>,
     dedup: &mut Dedup,
     cstats: &ClusterStats,
     frames: &mut Vec<RawFrame>,
 ) {
     let mut pack = Vec::new();
-    for d in batch {
-        pack.clear();
+    {
         match wire::decode_into(&d.payload, &mut pack) {
             Ok((receiver, damaged)) => {
                 if let Some(e) = damaged {
@@ -298,24 +297,20 @@ async fn run_partition<B: Bus>(
                     .position(|d| d.seq > acked)
                     .unwrap_or(batch.len());
                 let done = upto < batch.len() || batch.last().is_some_and(|d| d.seq >= acked);
-                frames.clear();
-                frames_of(
-                    batch.get(..upto).unwrap_or_default(),
-                    &mut dedup,
-                    &cstats,
-                    &mut frames,
-                );
-                replayed += frames.len() as u64;
-                cstats.warmup_frames.inc_by(frames.len() as u64);
-                if !frames.is_empty() {
-                    let b = FrameBatch {
-                        feed: feed.clone(),
-                        frames: std::mem::take(&mut frames),
-                        arrived: Instant::now(),
-                        done: None,
-                    };
-                    if tx.send(b).await.is_err() {
-                        return;
+                for d in batch.get(..upto).unwrap_or_default() {
+                    frames_of(d, &mut dedup, &cstats, &mut frames);
+                    replayed += frames.len() as u64;
+                    cstats.warmup_frames.inc_by(frames.len() as u64);
+                    if !frames.is_empty() {
+                        let b = FrameBatch {
+                            feed: feed.clone(),
+                            frames: std::mem::take(&mut frames),
+                            arrived: Instant::now(),
+                            done: None,
+                        };
+                        if tx.send(b).await.is_err() {
+                            return;
+                        }
                     }
                 }
                 if done {
@@ -369,32 +364,38 @@ async fn run_partition<B: Bus>(
                 }
             }
         };
-        let Some(last) = batch.pop() else { continue };
-        cstats.set_pending(p, last.pending);
-        frames.clear();
-        frames_of(&batch, &mut dedup, &cstats, &mut frames);
-        frames_of(
-            std::slice::from_ref(&last),
-            &mut dedup,
-            &cstats,
-            &mut frames,
-        );
-        cstats.frames_consumed.inc_by(frames.len() as u64);
+        let total = batch.len();
+        // One router batch per pack: a pack is one feed read's frames of this partition, so
+        // each aircraft gets its messages in the same batches as in a single process (its
+        // snapshot is published once per batch), whatever the pull gathered.
         let (completion, done) = Completion::new();
-        if !frames.is_empty() {
+        let arrived = Instant::now();
+        let mut stopped = false;
+        let mut last = None;
+        for (i, d) in batch.drain(..).enumerate() {
+            frames_of(&d, &mut dedup, &cstats, &mut frames);
+            if i + 1 == total {
+                cstats.set_pending(p, d.pending);
+                last = Some(d.handle);
+            }
+            cstats.frames_consumed.inc_by(frames.len() as u64);
+            if frames.is_empty() {
+                continue;
+            }
             let b = FrameBatch {
                 feed: feed.clone(),
                 frames: std::mem::take(&mut frames),
-                arrived: Instant::now(),
-                done: Some(completion),
+                arrived,
+                done: Some(completion.clone()),
             };
             if tx.send(b).await.is_err() {
+                stopped = true;
                 break;
             }
-        } else {
-            drop(completion);
         }
-        if ack_tx.send((done, last.handle)).await.is_err() {
+        drop(completion);
+        let Some(last) = last else { continue };
+        if stopped || ack_tx.send((done, last)).await.is_err() {
             break;
         }
     }

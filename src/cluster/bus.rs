@@ -144,6 +144,7 @@ pub trait Bus: Clone + Send + Sync + 'static {
 pub struct NatsBus {
     client: async_nats::Client,
     js: jetstream::Context,
+    frames_js: jetstream::Context,
     frames: stream::Stream,
     tracks: kv::Store,
     leases: kv::Store,
@@ -168,10 +169,15 @@ impl NatsBus {
             .connect(s.url)
             .await
             .map_err(|e| err(format!("connecting to {}", s.url))(e.to_string()))?;
-        let js = jetstream::ContextBuilder::new()
-            .max_ack_inflight(s.max_inflight.max(1))
+        // Frames are published on a context of their own: the ingest keeps up to
+        // `max_inflight` acknowledgements outstanding, and on a shared context those would
+        // hold the permits the track puts and lease updates need (a node with both roles
+        // stalled so). Its own bound is the ingest's; this one only backs it up.
+        let frames_js = jetstream::ContextBuilder::new()
+            .max_ack_inflight(s.max_inflight.max(1) + 1)
             .backpressure_on_inflight(true)
             .build(client.clone());
+        let js = jetstream::new(client.clone());
         let frames = js
             .get_or_create_stream(stream::Config {
                 name: FRAMES_STREAM.into(),
@@ -223,6 +229,7 @@ impl NatsBus {
         Ok(Self {
             client,
             js,
+            frames_js,
             frames,
             tracks,
             leases,
@@ -365,7 +372,7 @@ impl Bus for NatsBus {
 
     async fn publish(&self, p: u32, id: String, payload: Bytes) -> Result<PendingAck, BusError> {
         let ack = self
-            .js
+            .frames_js
             .send_publish(
                 super::wire::frames_subject(p),
                 jetstream::message::PublishMessage::build()

@@ -32,7 +32,8 @@ struct InFlight {
     id: String,
     payload: Bytes,
     frames: u64,
-    ack: PendingAck,
+    /// `None`: its acknowledgement failed; it is to be published again.
+    ack: Option<PendingAck>,
 }
 
 /// Publishes with its message ids and bounded in-flight acknowledgements.
@@ -70,9 +71,30 @@ impl<B: Bus> Publisher<B> {
             id,
             payload,
             frames,
-            ack,
+            ack: Some(ack),
         });
         true
+    }
+
+    /// Counts the acknowledgements already in, oldest first, without waiting.
+    fn settle_ready(&mut self) {
+        while let Some(f) = self.inflight.front_mut() {
+            let Some(ack) = f.ack.as_mut() else { break };
+            match futures_util::FutureExt::now_or_never(ack) {
+                Some(Ok(())) => {
+                    self.cstats.frames_published.inc_by(f.frames);
+                    self.cstats.packs_published.inc();
+                    self.inflight.pop_front();
+                }
+                Some(Err(e)) => {
+                    // `settle_oldest` publishes it again.
+                    tracing::warn!(error = %e, id = %f.id, "publish not acknowledged");
+                    f.ack = None;
+                    break;
+                }
+                None => break,
+            }
+        }
     }
 
     /// Waits for the oldest acknowledgement, publishing again until it comes.
@@ -81,9 +103,15 @@ impl<B: Bus> Publisher<B> {
             return true;
         };
         loop {
-            let r = tokio::select! {
-                _ = stop.cancelled() => return false,
-                r = &mut f.ack => r,
+            let r = match f.ack.as_mut() {
+                Some(ack) => tokio::select! {
+                    _ = stop.cancelled() => return false,
+                    r = ack => r,
+                },
+                None => Err(super::bus::BusError {
+                    what: "publishing frames".into(),
+                    error: "not acknowledged".into(),
+                }),
             };
             match r {
                 Ok(()) => {
@@ -104,7 +132,7 @@ impl<B: Bus> Publisher<B> {
                     )
                     .await
                     {
-                        Some(ack) => f.ack = ack,
+                        Some(ack) => f.ack = Some(ack),
                         None => return false,
                     }
                 }
@@ -213,6 +241,7 @@ pub async fn run<B: Bus>(
                 }
             }
         }
+        publisher.settle_ready();
         if rx.is_empty() {
             stats.router_idle();
         }

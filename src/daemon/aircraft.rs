@@ -142,6 +142,17 @@ pub struct Aircraft {
     /// The position decoder's reference resets seen so far (`CprStats::resets`).
     cpr_resets_seen: u64,
     updates: u64,
+    /// Feed time of the last tracker update, s.
+    last_update_t_s: f64,
+    /// Half the trackers' `max_gap_s`: a report without a position after this much silence
+    /// may end the track, so the estimate is kept first ([`Aircraft::ended`]).
+    ending_gap_s: f64,
+    /// The last snapshot of a track that ended (a report past the trackers' gap rule, or a
+    /// reset), until published: what the aircraft's slot keeps showing. Taken at the moment
+    /// the track ends, it does not depend on how the messages were batched (a snapshot made
+    /// only at batch ends would: a track ending mid-batch would show an older estimate, or
+    /// none, depending on where the batch boundaries fell).
+    ended: Option<Published>,
 }
 
 impl Aircraft {
@@ -160,6 +171,9 @@ impl Aircraft {
             last_fix: None,
             cpr_resets_seen: 0,
             updates: 0,
+            last_update_t_s: f64::NEG_INFINITY,
+            ending_gap_s: 0.5 * cfg.tracker_config.max_gap_s,
+            ended: None,
         }
     }
 
@@ -263,11 +277,24 @@ impl Aircraft {
         let Some(m) = measurement else {
             return false;
         };
+        // Rare (a report without a position after a long silence): keep the estimate this
+        // report may end.
+        let before = if m.position.is_none() && m.t_s - self.last_update_t_s > self.ending_gap_s {
+            self.published(&[], counts)
+        } else {
+            None
+        };
         match self.tracker.update(&m) {
             // A report without a position long after the track's last one ends the track
             // (every tracker's `max_gap_s` rule) rather than updating it: no estimate left.
-            Ok(()) if m.position.is_none() && self.tracker.estimate().is_none() => false,
+            Ok(()) if m.position.is_none() && self.tracker.estimate().is_none() => {
+                if before.is_some() {
+                    self.ended = before;
+                }
+                false
+            }
             Ok(()) => {
+                self.last_update_t_s = m.t_s;
                 self.updates += 1;
                 counts.track_updates += 1;
                 true
@@ -309,7 +336,7 @@ impl Aircraft {
         if cpr_resets != self.cpr_resets_seen {
             self.cpr_resets_seen = cpr_resets;
             if self.frame.is_some() {
-                self.reset_track();
+                self.reset_track(counts);
                 counts.track_resets_jump += 1;
             }
         }
@@ -328,7 +355,7 @@ impl Aircraft {
         let (mut enu, mut rotation) = frame.to_enu_with_rotation(lat, lon, h_m);
         if enu.norm() > MAX_TRACK_RADIUS_M {
             // Too far from the track's plane to continue it: a new track, in a new plane.
-            self.reset_track();
+            self.reset_track(counts);
             counts.track_resets_jump += 1;
             let frame = *self.frame.insert(LocalFrame::new(lat, lon, 0.0));
             (enu, rotation) = frame.to_enu_with_rotation(lat, lon, h_m);
@@ -413,7 +440,7 @@ impl Aircraft {
         }
         if !ok {
             tracing::debug!(icao = %self.icao, "non-finite or runaway estimate: track reset");
-            self.reset_track();
+            self.clear_track();
             counts.track_resets_nonfinite += 1;
             return None;
         }
@@ -455,7 +482,16 @@ impl Aircraft {
 
     /// Drops the track (not what the aircraft said about itself, nor its CPR state): the
     /// next position starts a new one, in a new plane.
-    fn reset_track(&mut self) {
+    /// Ends the track, keeping its last snapshot ([`Aircraft::ended`]).
+    fn reset_track(&mut self, counts: &mut Counts) {
+        if let Some(p) = self.published(&[], counts) {
+            self.ended = Some(p);
+        }
+        self.clear_track();
+    }
+
+    /// Ends the track without a snapshot (its estimate is not publishable).
+    fn clear_track(&mut self) {
         self.tracker.reset();
         self.frame = None;
         self.last_rotation = None;
@@ -571,8 +607,16 @@ pub async fn run_task(
 /// reader lets go. (Recycling it saved one allocation a batch but kept a second snapshot
 /// alive per aircraft, 650 bytes each: memory per aircraft is the scarcer resource.)
 fn publish(aircraft: &mut Aircraft, slot: &Slot, ctx: &TaskContext, counts: &mut Counts) {
-    if let Some(p) = aircraft.published(&ctx.prediction_horizons_s, counts) {
-        slot.store(Arc::new(p));
+    match aircraft.published(&ctx.prediction_horizons_s, counts) {
+        Some(p) => {
+            aircraft.ended = None;
+            slot.store(Arc::new(p));
+        }
+        None => {
+            if let Some(p) = aircraft.ended.take() {
+                slot.store(Arc::new(p));
+            }
+        }
     }
 }
 

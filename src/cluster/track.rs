@@ -60,12 +60,20 @@ pub fn owner_of<'a>(p: u32, members: &'a [String]) -> Option<&'a str> {
     members
         .iter()
         .max_by_key(|m| {
-            // FNV-1a 64 over the member's name and the partition number.
+            // FNV-1a 64 over the member's name and the partition number, then MurmurHash3's
+            // 64-bit finaliser: FNV alone barely mixes its last bytes into the high bits, and
+            // names differing in one character ("track-1", "track-2") then compared the same
+            // way for every partition (one node took all of them).
             let mut h: u64 = 0xcbf2_9ce4_8422_2325;
             for b in m.as_bytes().iter().chain(p.to_be_bytes().iter()) {
                 h ^= u64::from(*b);
                 h = h.wrapping_mul(0x0000_0100_0000_01b3);
             }
+            h ^= h >> 33;
+            h = h.wrapping_mul(0xff51_afd7_ed55_8ccd);
+            h ^= h >> 33;
+            h = h.wrapping_mul(0xc4ce_b9fe_1a85_ec53);
+            h ^= h >> 33;
             (h, m.as_str())
         })
         .map(String::as_str)
@@ -106,6 +114,7 @@ pub async fn run<B: Bus>(
     // The first round only announces this node: nodes started together then see each other
     // before anyone takes a partition.
     let mut announced = false;
+    let mut known_members: Vec<String> = Vec::new();
     loop {
         tokio::select! {
             _ = stop.cancelled() => break,
@@ -167,6 +176,10 @@ pub async fn run<B: Bus>(
                 continue;
             }
         };
+        if members != known_members {
+            tracing::info!(?members, "track nodes");
+            known_members = members.clone();
+        }
         let held: HashMap<String, String> = match bus.lease_list("partition.").await {
             Ok(l) => l.into_iter().collect(),
             Err(e) => {

@@ -297,13 +297,11 @@ mod tests {
         let config = Config::default_config().expect("defaults");
         let mut pipeline = sync_pipeline(&config, "hybrid");
         let mut frames = Vec::new();
-        let mut n = 0;
         let mut calls = 0;
         loop {
             let more = reader.next_batch(&mut frames).expect("reads");
             for f in frames.drain(..) {
                 pipeline.push(&f);
-                n += 1;
             }
             if !more {
                 break;

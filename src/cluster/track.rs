@@ -56,7 +56,7 @@ const KV_CONCURRENCY: usize = 64;
 /// The rendezvous-hash (highest random weight) owner of partition `p` among `members`:
 /// every node computes the same one from the same list, and a member's leaving moves only
 /// its own partitions.
-pub fn owner_of<'a>(p: u32, members: &'a [String]) -> Option<&'a str> {
+pub fn owner_of(p: u32, members: &[String]) -> Option<&str> {
     members
         .iter()
         .max_by_key(|m| {

@@ -166,7 +166,15 @@ impl NatsBus {
         let client = async_nats::ConnectOptions::new()
             .name("adsb-tracker")
             .connection_timeout(Duration::from_secs(5))
-            .connect(s.url)
+            // One server or a comma-separated list (the client learns the rest of a NATS
+            // cluster from the servers themselves).
+            .connect(
+                s.url
+                    .split(',')
+                    .map(str::trim)
+                    .filter(|u| !u.is_empty())
+                    .collect::<Vec<_>>(),
+            )
             .await
             .map_err(|e| err(format!("connecting to {}", s.url))(e.to_string()))?;
         // Frames are published on a context of their own: the ingest keeps up to

@@ -36,7 +36,8 @@ pub const MAX_PARTITIONS: u32 = 1024;
 #[derive(Clone, Debug, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct ClusterConfig {
-    /// The NATS server (any server of a NATS cluster), `nats://host:port`.
+    /// The NATS server, `nats://host:port`: any server of a NATS cluster, or several,
+    /// comma-separated.
     pub nats_url: String,
     /// This process's roles: any non-empty subset of `ingest`, `track`, `api`.
     pub roles: Vec<Role>,
@@ -94,9 +95,16 @@ impl ClusterConfig {
     }
 
     pub(super) fn validate(&self) -> Result<(), ConfigError> {
-        let url = self.nats_url.trim();
-        if url.is_empty() || url.chars().any(char::is_whitespace) {
-            return Err(bad("cluster.nats_url", "expected nats://host:port"));
+        if self
+            .nats_url
+            .split(',')
+            .map(str::trim)
+            .any(|u| u.is_empty() || u.chars().any(char::is_whitespace))
+        {
+            return Err(bad(
+                "cluster.nats_url",
+                "expected nats://host:port, or several separated by commas",
+            ));
         }
         if self.roles.is_empty() {
             return Err(bad(

@@ -9,7 +9,7 @@
 //! round-trip f64 exactly (serde_json writes the shortest exact form).
 
 use crate::daemon::registry::{AircraftFacts, PredictionEnu, Published, TrackState};
-use crate::decode::{Callsign, Icao};
+use crate::decode::Icao;
 use crate::track::geo::LocalFrame;
 use crate::track::nis::NisStat;
 use crate::track::{Estimate, FlightMode, Lateral, SpeedTrend, TurnDirection, VerticalTrend};
@@ -20,26 +20,6 @@ use std::sync::Mutex;
 
 /// Version of [`StateRecord`]; an api node skips (and counts) another.
 pub const STATE_VERSION: u8 = 1;
-
-/// The raw facts of [`AircraftFacts`].
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct FactsRecord {
-    pub callsign: Option<[u8; 8]>,
-    pub squawk: Option<u16>,
-    pub category: Option<(u8, u8)>,
-    pub baro_alt_ft: Option<i32>,
-    pub on_ground: bool,
-    pub nac_p: Option<u8>,
-    pub adsb_version: Option<u8>,
-    pub messages: u64,
-    pub last_seen: f64,
-    pub positions_accepted: u64,
-    pub positions_rejected: u64,
-    pub nac_v: Option<u8>,
-    pub geom_minus_baro_ft: Option<i32>,
-    pub position_type_code: Option<u8>,
-    pub signal_power: Option<f32>,
-}
 
 /// A [`Published`] snapshot, serialisable.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -64,7 +44,7 @@ pub struct StateRecord {
     pub speed: String,
     pub vertical: String,
     pub nis: Option<(f64, u32)>,
-    pub facts: FactsRecord,
+    pub facts: AircraftFacts,
     /// (dt_s, t_s, east, north, up m, sigma m) per horizon.
     pub predictions: Vec<[f64; 6]>,
 }
@@ -109,7 +89,6 @@ fn rows(m: &Matrix3<f64>) -> [f64; 9] {
 pub fn encode(p: &Published) -> Vec<u8> {
     let track = p.track_state();
     let e = &p.estimate;
-    let f = &p.facts;
     let (lat, lon, h) = p.frame.origin();
     let state = StateRecord {
         version: STATE_VERSION,
@@ -130,23 +109,7 @@ pub fn encode(p: &Published) -> Vec<u8> {
         speed: track.speed.to_string(),
         vertical: track.vertical.to_string(),
         nis: e.nis.map(|n| (n.nis, n.dof)),
-        facts: FactsRecord {
-            callsign: f.callsign.map(|c| c.0),
-            squawk: f.squawk,
-            category: f.category,
-            baro_alt_ft: f.baro_alt_ft,
-            on_ground: f.on_ground,
-            nac_p: f.nac_p,
-            adsb_version: f.adsb_version,
-            messages: f.messages,
-            last_seen: f.last_seen,
-            positions_accepted: f.positions_accepted,
-            positions_rejected: f.positions_rejected,
-            nac_v: f.nac_v,
-            geom_minus_baro_ft: f.geom_minus_baro_ft,
-            position_type_code: f.position_type_code,
-            signal_power: f.signal_power,
-        },
+        facts: p.facts,
         predictions: p
             .predictions
             .iter()
@@ -206,7 +169,6 @@ pub fn decode(bytes: &[u8]) -> Result<Published, StateError> {
     };
     let [lat, lon, h] = s.origin;
     let v3 = |a: [f64; 3]| Vector3::new(a[0], a[1], a[2]);
-    let f = s.facts;
     Ok(Published {
         icao: Icao(s.icao & 0xff_ffff),
         frame: LocalFrame::new(lat, lon, h),
@@ -227,23 +189,7 @@ pub fn decode(bytes: &[u8]) -> Result<Published, StateError> {
             vertical,
             nis: s.nis.map(|(nis, dof)| NisStat { nis, dof }),
         },
-        facts: AircraftFacts {
-            callsign: f.callsign.map(Callsign),
-            squawk: f.squawk,
-            category: f.category,
-            baro_alt_ft: f.baro_alt_ft,
-            on_ground: f.on_ground,
-            nac_p: f.nac_p,
-            adsb_version: f.adsb_version,
-            messages: f.messages,
-            last_seen: f.last_seen,
-            positions_accepted: f.positions_accepted,
-            positions_rejected: f.positions_rejected,
-            nac_v: f.nac_v,
-            geom_minus_baro_ft: f.geom_minus_baro_ft,
-            position_type_code: f.position_type_code,
-            signal_power: f.signal_power,
-        },
+        facts: s.facts,
         predictions: s
             .predictions
             .iter()

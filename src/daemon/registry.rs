@@ -156,8 +156,9 @@ pub struct PredictionEnu {
     pub pos_sigma_m: f64,
 }
 
-/// What an aircraft said about itself, as decoded (no text made yet).
-#[derive(Clone, Copy, Debug, PartialEq, Default)]
+/// What an aircraft said about itself, as decoded (no text made yet). Serialisable: a cluster
+/// track node puts it in the tracks bucket as is (`cluster::state`).
+#[derive(Clone, Copy, Debug, PartialEq, Default, Serialize, serde::Deserialize)]
 pub struct AircraftFacts {
     pub callsign: Option<Callsign>,
     /// Mode A code as its 12 bits (printed in octal).

@@ -45,8 +45,9 @@ impl Serialize for Icao {
 }
 
 /// An 8-character callsign as transmitted (ICAO 6-bit charset, DO-260B §2.2.3.2.5),
-/// trailing spaces kept in the array and trimmed by [`Callsign::as_str`].
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+/// trailing spaces kept in the array and trimmed by [`Callsign::as_str`]. (Serialised as its
+/// bytes, in a cluster's track values.)
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub struct Callsign(pub [u8; 8]);
 
 impl Callsign {

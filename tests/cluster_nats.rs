@@ -378,6 +378,8 @@ fn two_track_nodes_serve_what_one_process_serves() {
         "{} aircraft equal to the single process; {published} frames, {c1} + {c2} consumed",
         got.len()
     );
+    drop((ingest, t1, t2, api, nats));
+    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
@@ -444,4 +446,6 @@ fn a_killed_track_node_is_taken_over_and_nothing_is_lost() {
          {redelivered} messages delivered again; {} aircraft equal to the single process",
         got.len()
     );
+    drop((ingest, t1, api, nats));
+    let _ = std::fs::remove_dir_all(&dir);
 }

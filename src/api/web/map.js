@@ -1010,6 +1010,10 @@ window.adsbMap = {
   track: (icao) => aircraft.get(icao)?.track ?? null,
   /** icao -> [x, y] of each icon in the last drawing, in the map container's pixels. */
   drawn: () => Object.fromEntries(aircraftCanvas.drawn),
+  /** Events received but not yet drawn (a frame or a throttled canvas redraw is due): while
+   * true, `drawn` may lag `icaos` by the aircraft that arrived since the last drawing. */
+  drawPending: () =>
+    frameQueued || pending.size > 0 || aircraftCanvas._queued || aircraftCanvas._timer !== null,
   selected: () => selected,
   /** Fitted to the aircraft and not moving: what a test waits for before it measures. */
   settled: () => fitted && !moving,

@@ -1,11 +1,19 @@
 //! `evaluate --recording` (issue 10): consistency without truth on real recordings, per
-//! tracker and declared NACp. These pin what today's trackers say about themselves on
-//! real traffic, the baseline issue 10 is to improve on: on the AFR34ZG flight (declares
-//! nothing, so R comes from NUCp) the covariance is far too cautious (windowed NIS per
-//! degree of freedom about 0.1, inside its 95 % band almost never) yet rarely flagged
-//! diverging; on LAX the aircraft declaring NACp 10 are flagged diverging on a third of
-//! their airborne updates, with NIS/dof well above 1. A change to the trackers' noise
-//! handling that moves these figures must update them here and in docs/evaluation.md.
+//! tracker and declared NACp.
+//!
+//! - `diverging` is paper 000's criterion confirmed on four reports in a row, the point where
+//!   the suppressor acts: on every recording and every declared NACp it is on for under 1 %
+//!   of the steady updates with `hybrid` and `imm`. The plain `kalman-cv`, which takes the
+//!   declared NACp literally and learns nothing, stays flagged on ~45 % of the LAX NACp 10
+//!   updates: its covariance there is a third of what the data show.
+//! - The hybrid learns each aircraft's noise (`track::noise`): on AFR34ZG (declares nothing,
+//!   so R starts from NUCp's 38 m per axis) its NIS per degree of freedom moves from 0.04 to
+//!   about 0.12 and its position sigma from 7 m to about 2.4 m; on LAX NACp 10 from 3.5 to
+//!   about 1.9. The windowed NIS is still seldom inside its band (under 25 %): level flight
+//!   reports a constant quantised altitude and vertical rate, whose zero innovations no
+//!   honest covariance can make chi-square, and LAX's timing is approximate.
+//!
+//! A change that moves these figures must update them here and in docs/evaluation.md.
 
 use adsb_tracker::config::Config;
 use adsb_tracker::eval::consistency::{self, Group};
@@ -26,20 +34,26 @@ fn within(what: &str, x: Option<f64>, lo: f64, hi: f64) {
 }
 
 #[test]
-fn afr34zg_is_cautious_and_rarely_flagged() {
-    for (tracker, diverging_pct, nis_dof) in [
-        ("hybrid", (0.5, 2.0), (0.02, 0.08)),
-        ("kalman-cv", (1.5, 3.5), (0.05, 0.2)),
-        ("imm", (0.5, 2.0), (0.04, 0.16)),
+fn afr34zg_is_rarely_flagged() {
+    for (tracker, nis_dof, sigma_m) in [
+        ("hybrid", (0.08, 0.2), (1.5, 3.5)),
+        ("kalman-cv", (0.05, 0.2), (6.0, 9.0)),
+        ("imm", (0.04, 0.16), (6.0, 9.0)),
     ] {
         let g = groups("afr34zg-cdg-tls.jsonl", 1000.0, tracker);
         let all = &g["all"];
         assert_eq!(all.airborne, 12_829, "{tracker}");
         within(
-            &format!("{tracker} diverging %"),
+            &format!("{tracker} steady diverging %"),
+            all.steady_diverging_pct(),
+            0.0,
+            1.0,
+        );
+        within(
+            &format!("{tracker} airborne diverging %"),
             all.airborne_diverging_pct(),
-            diverging_pct.0,
-            diverging_pct.1,
+            0.0,
+            1.0,
         );
         within(
             &format!("{tracker} NIS/dof"),
@@ -47,7 +61,7 @@ fn afr34zg_is_cautious_and_rarely_flagged() {
             nis_dof.0,
             nis_dof.1,
         );
-        // The track is right: 6-9 m from each frame's own decode; its sigma says 7-8 m.
+        // The track is right: 6-9 m from each frame's own decode.
         within(
             &format!("{tracker} scatter"),
             all.median_scatter_m(),
@@ -57,31 +71,64 @@ fn afr34zg_is_cautious_and_rarely_flagged() {
         within(
             &format!("{tracker} sigma"),
             all.median_pos_sigma_m(),
-            6.0,
-            9.0,
+            sigma_m.0,
+            sigma_m.1,
         );
         within(
             &format!("{tracker} NIS in band %"),
             all.nis_in_band_pct(),
             0.0,
-            10.0,
+            25.0,
         );
     }
 }
 
 #[test]
-fn lax_nacp10_is_overconfident() {
+fn lax_every_nacp_is_rarely_flagged() {
+    for tracker in ["hybrid", "imm"] {
+        let g = groups("lax-messages.avr.txt", 270.0, tracker);
+        assert_eq!(g["10"].airborne, 32_405);
+        for (nacp, group) in &g {
+            if group.steady < 30 {
+                continue;
+            }
+            within(
+                &format!("{tracker} NACp {nacp} steady diverging %"),
+                group.steady_diverging_pct(),
+                0.0,
+                1.0,
+            );
+        }
+        within(
+            &format!("{tracker} NACp 10 airborne diverging %"),
+            g["10"].airborne_diverging_pct(),
+            0.0,
+            2.5,
+        );
+    }
+    // The hybrid's NACp 10 aircraft: NIS per degree of freedom 1.9 (3.5 without learning).
     let g = groups("lax-messages.avr.txt", 270.0, "hybrid");
-    let n10 = &g["10"];
-    assert_eq!(n10.airborne, 32_405);
     within(
-        "NACp 10 diverging %",
-        n10.airborne_diverging_pct(),
-        25.0,
-        45.0,
+        "hybrid NACp 10 NIS/dof",
+        g["10"].median_nis_per_dof(),
+        1.4,
+        2.5,
     );
-    within("NACp 10 NIS/dof", n10.median_nis_per_dof(), 2.0, 5.0);
+}
+
+#[test]
+fn lax_nacp10_taken_literally_is_overconfident() {
+    // The plain Kalman filter learns nothing: NACp 10's 4 m per axis against LAX's scatter.
+    let g = groups("lax-messages.avr.txt", 270.0, "kalman-cv");
+    let n10 = &g["10"];
+    within(
+        "NACp 10 steady diverging %",
+        n10.steady_diverging_pct(),
+        35.0,
+        55.0,
+    );
+    within("NACp 10 NIS/dof", n10.median_nis_per_dof(), 6.0, 14.0);
     // The less an aircraft claims, the less often it is flagged.
-    let pct = |k: &str| g[k].airborne_diverging_pct().unwrap();
+    let pct = |k: &str| g[k].steady_diverging_pct().unwrap();
     assert!(pct("10") > pct("9") && pct("9") > pct("8"), "{g:?}");
 }

@@ -50,9 +50,12 @@ fn paper002_hybrid_against_kalman_and_imm() {
     );
     // Straight legs: at most the CV Kalman filter's error, and the IMM's: with a velocity
     // measured every second both sit on the same floor (10.322 m each over 100 runs; the
-    // Kalman filter's 10.595 m is its lag after the turns).
+    // Kalman filter's 10.595 m is its lag after the turns). The hybrid learns each
+    // aircraft's measurement noise (`track::noise`); here the reports declare exactly the
+    // noise they carry, so learning can only scatter about it: 0.7 % on these 20 runs
+    // (10.26 m against 10.19 m), the price of what it gains where declarations are wrong.
     assert!(rmse(hy, "CV") <= rmse(kf, "CV"), "{report}");
-    assert!(rmse(hy, "CV") <= 1.002 * rmse(imm, "CV"), "{report}");
+    assert!(rmse(hy, "CV") <= 1.01 * rmse(imm, "CV"), "{report}");
     // Turns: within 5 % of the IMM and clearly below the Kalman filter.
     assert!(rmse(hy, "CT") <= 1.05 * rmse(imm, "CT"), "{report}");
     assert!(rmse(hy, "CT") < 0.8 * rmse(kf, "CT"), "{report}");

@@ -158,6 +158,10 @@ pub struct HybridConfig {
     pub turn_rate_limits_deg_s: [f64; 2],
     /// IMM probability of the gate's label when the IMM opens.
     pub entry_probability: f64,
+    /// Learn each aircraft's measurement noise from its innovations (`track::noise`).
+    pub learn_noise: bool,
+    /// Bounds of the learned factor on the declared covariance.
+    pub noise_scale_limits: [f64; 2],
 }
 
 /// `v` finite and within `lo..=hi` (`lo_open`: `lo` itself excluded).
@@ -382,6 +386,7 @@ impl TrackerConfig {
             q_v_m2ps3: self.cv_q_vertical,
             max_gap_s: self.max_gap_s,
             divergence_r: self.divergence.params()?.r,
+            divergence_confirm: self.divergence.params()?.confirm,
             ..CvParams::default()
         })
     }
@@ -448,6 +453,11 @@ impl TrackerConfig {
             false,
             1.0,
         )?;
+        p.noise.enabled = h.learn_noise;
+        let [lo, hi] = h.noise_scale_limits;
+        let key = "tracker.hybrid.noise_scale_limits";
+        p.noise.min_scale = check(key, lo, 0.0, true, 1.0)?;
+        p.noise.max_scale = check(key, hi, 1.0, false, 1.0e4)?;
         Ok(p)
     }
 

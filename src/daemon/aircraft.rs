@@ -284,6 +284,8 @@ impl Aircraft {
         } else {
             None
         };
+        self.tracker
+            .set_accuracy_declared(self.facts.nac_p.is_some());
         match self.tracker.update(&m) {
             // A report without a position long after the track's last one ends the track
             // (every tracker's `max_gap_s` rule) rather than updating it: no estimate left.

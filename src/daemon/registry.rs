@@ -86,7 +86,9 @@ pub struct TrackState {
     pub filter: &'static str,
     /// 1-sigma horizontal position uncertainty, m.
     pub pos_sigma_m: f64,
-    /// True while paper 000's divergence criterion holds.
+    /// True while paper 000's divergence criterion has held on each of the last
+    /// `[tracker.divergence] confirm` reports (4): the filter has lost the aircraft, not a
+    /// single large residual, which a consistent filter shows on a few % of reports.
     pub diverging: bool,
     /// 1-sigma horizontal velocity uncertainty, m/s.
     pub vel_sigma_mps: f64,

@@ -50,6 +50,11 @@ pub struct CvParams {
     pub init_vrate_sigma_mps: f64,
     /// Paper 000's storage factor r in εᵀε > r·Tr(S) (r ∈ [1, 5]; the paper uses 3).
     pub divergence_r: f64,
+    /// Consecutive events before [`Estimate::diverging`] is set. Default 4, as the
+    /// suppressor's confirmation in the other trackers (`divergence` module doc): a
+    /// consistent filter meets the criterion on a few % of reports by chance, four in a row
+    /// almost never, while a real divergence holds on every report.
+    pub divergence_confirm: u32,
 }
 
 impl Default for CvParams {
@@ -62,6 +67,7 @@ impl Default for CvParams {
             init_speed_sigma_mps: 300.0,
             init_vrate_sigma_mps: 30.0,
             divergence_r: 3.0,
+            divergence_confirm: 4,
         }
     }
 }
@@ -147,7 +153,8 @@ struct Track {
 /// - A report older than the track is refused (`OutOfOrder`) and changes nothing; a report
 ///   more than `max_gap_s` after the track re-initialises it.
 /// - On each position update, paper 000's criterion εᵀε > r·Tr(S) over the position part of
-///   the innovation sets [`Estimate::diverging`]; each update where it holds is one event.
+///   the innovation is one divergence event; [`Estimate::diverging`] is set while the last
+///   `divergence_confirm` position updates were all events.
 #[derive(Clone, Debug, PartialEq)]
 pub struct CvKalman {
     params: CvParams,
@@ -156,6 +163,8 @@ pub struct CvKalman {
     /// Latest velocity report seen while there was no track: (time, velocity).
     pending_velocity: Option<(f64, Observed)>,
     diverging: bool,
+    /// Consecutive divergence events.
+    divergence_run: u32,
     divergence_events: u64,
     reinitialisations: u64,
     nis: super::nis::NisWindow,
@@ -179,6 +188,7 @@ impl CvKalman {
             track: None,
             pending_velocity: None,
             diverging: false,
+            divergence_run: 0,
             divergence_events: 0,
             reinitialisations: 0,
             nis: super::nis::NisWindow::default(),
@@ -240,6 +250,7 @@ impl CvKalman {
         });
         self.pending_velocity = None;
         self.diverging = false;
+        self.divergence_run = 0;
         self.nis.clear();
     }
 
@@ -362,10 +373,13 @@ impl Tracker for CvKalman {
             (None, None) => return Ok(()),
         };
         if let Some((residual, s_pos)) = position_innovation {
-            self.diverging = self.position_diverges(&residual, &s_pos);
-            if self.diverging {
+            if self.position_diverges(&residual, &s_pos) {
                 self.divergence_events = self.divergence_events.saturating_add(1);
+                self.divergence_run = self.divergence_run.saturating_add(1);
+            } else {
+                self.divergence_run = 0;
             }
+            self.diverging = self.divergence_run >= self.params.divergence_confirm.max(1);
         }
         self.track = Some(Track { t_s: m.t_s, x, p });
         Ok(())
@@ -782,12 +796,28 @@ mod tests {
         ))
         .unwrap();
         let est = kf.estimate().unwrap();
-        assert!(est.diverging);
+        // One event, not yet a divergence: the flag waits for `divergence_confirm` in a row.
+        assert!(!est.diverging);
         assert_eq!(est.divergence_events, quiet.divergence_events + 1);
         // Noise-free reports on the line never trip it; the jump trips it exactly once.
         assert!(!quiet.diverging);
         assert_eq!(quiet.divergence_events, 0);
         assert_eq!(est.divergence_events, 1);
+        // The aircraft really is elsewhere: reports 2 km off, each an event, the fourth sets
+        // the flag.
+        let mut off = kf.clone();
+        for k in 21..24 {
+            let t = k as f64;
+            off.update(&pos_report(
+                t,
+                Vector3::new(100.0 * t + 2000.0, 0.0, 0.0),
+                sigma_m,
+            ))
+            .unwrap();
+            let e = off.estimate().unwrap();
+            assert_eq!(e.divergence_events, (k - 19) as u64, "at {t} s");
+            assert_eq!(e.diverging, k == 23, "at {t} s");
+        }
         // Back on the line the filter, pulled off by the jump (its velocity too), needs some
         // reports to settle (without paper 000's suppressor, which is not applied here):
         // by 40 s later the flag has cleared.

@@ -51,6 +51,7 @@
 //!   off with `suppress: false`.
 
 use super::kalman::{self, Innovation, MotionModel};
+use super::noise::BlockStat;
 use super::{Observed, TrackError, UNMEASURED_VARIANCE};
 use nalgebra::{SMatrix, SVector};
 
@@ -179,11 +180,38 @@ pub struct Guarded<const N: usize> {
     pub run: u32,
     /// The Adapt applied (1 when none).
     pub adapt: f64,
+    /// The nominal innovation over the measured components of the position block (`[0]`)
+    /// and of the velocity block (`[1]`); zeros for a block not in the report. What
+    /// [`super::noise`] learns the measurement noise from.
+    pub blocks: [BlockStat; 2],
 }
 
 /// Components whose variance is below half of [`UNMEASURED_VARIANCE`] count as measured.
 fn measured(r_ii: f64) -> bool {
     r_ii < 0.5 * UNMEASURED_VARIANCE
+}
+
+/// εᵀε, Tr(S) and Tr(R) over the measured horizontal components (the first two) of the
+/// 3-vector block starting at `start` of an M-vector innovation.
+fn block_stat<const M: usize>(
+    inn: &Innovation<M>,
+    r: &SMatrix<f64, M, M>,
+    start: usize,
+) -> BlockStat {
+    let mut stat = BlockStat::default();
+    for m in start..start + 2 {
+        let (Some(&e), Some(&s_mm), Some(&r_mm)) =
+            (inn.residual.get(m), inn.s.get((m, m)), r.get((m, m)))
+        else {
+            continue;
+        };
+        if measured(r_mm) {
+            stat.e2 += e * e;
+            stat.tr_s += s_mm;
+            stat.tr_r += r_mm;
+        }
+    }
+    stat
 }
 
 /// Paper 000's criterion (eq. 24) and Adapt (eq. 29) for one 3-vector block starting at
@@ -299,7 +327,11 @@ fn guarded_update_m<const N: usize, const M: usize>(
     let inn = kalman::update_selected(&mut x, &mut p, z, sel, r)?;
     let mut diverged = false;
     let mut adapt = 1.0_f64;
+    let mut stats = [BlockStat::default(); 2];
     for (b, &state_offset) in blocks.iter().enumerate() {
+        if let Some(slot) = stats.get_mut(state_offset / 3) {
+            *slot = block_stat(&inn, r, 3 * b);
+        }
         if let Some(a) = block_adapt(&inn, r, pred, 3 * b, state_offset, params.r) {
             diverged = true;
             if a.is_finite() {
@@ -330,6 +362,7 @@ fn guarded_update_m<const N: usize, const M: usize>(
         diverged,
         run,
         adapt,
+        blocks: stats,
     })
 }
 

@@ -38,6 +38,7 @@ use super::imm::{
 use super::kalman::MotionModel;
 use super::models::{Cv, Matrix6, Matrix9, Model, State6, State9, ACC};
 use super::nis::NisWindow;
+use super::noise::{NoiseLearner, NoiseParams};
 use super::{
     Estimate, FlightMode, Lateral, Measurement, Observed, TrackError, Tracker, TurnDirection,
 };
@@ -87,6 +88,10 @@ pub struct HybridParams {
     pub adapt_turn_rate: bool,
     /// Clamp of the adapted turn rate, °/s. Default 0.5 to 6.
     pub turn_rate_limits_deg_s: (f64, f64),
+    /// The measurement noise learned per aircraft ([`super::noise`]): the CV filter, the
+    /// IMM and the gate all see the declared covariance scaled by what the CV filter's
+    /// innovations taught. Learned only while the CV filter runs.
+    pub noise: NoiseParams,
     /// IMM probability given to the gate's label when the IMM opens; CV gets half the rest
     /// and the other modes share the remainder. Default 0.5.
     pub entry_probability: f64,
@@ -108,6 +113,7 @@ impl Default for HybridParams {
             adapt_turn_rate: true,
             turn_rate_limits_deg_s: (0.5, 6.0),
             entry_probability: 0.5,
+            noise: NoiseParams::default(),
         }
     }
 }
@@ -125,6 +131,17 @@ impl HybridParams {
 /// Mean Earth radius, m (IUGG R1), for [`to_local_axes`].
 const EARTH_RADIUS_M: f64 = 6_371_008.8;
 
+/// The local vertical of a spherical Earth at `pos_m` (a position in the track's frame), a
+/// unit vector in the frame; the frame's own up where that is not finite.
+fn local_up(pos_m: &Vector3<f64>) -> Vector3<f64> {
+    let up = (pos_m + Vector3::z() * EARTH_RADIUS_M).normalize();
+    if up.iter().all(|c| c.is_finite()) {
+        up
+    } else {
+        Vector3::z()
+    }
+}
+
 /// A velocity given in the track frame's axes, turned into the east-north-up axes at `pos_m`
 /// (a position in that frame), for the gate's tests.
 ///
@@ -138,7 +155,7 @@ const EARTH_RADIUS_M: f64 = 6_371_008.8;
 /// in the heading is constant over the gate's window, whose tests read changes.
 fn to_local_axes(pos_m: &Vector3<f64>, v: &Observed) -> Observed {
     let z = Vector3::z();
-    let up = (pos_m + z * EARTH_RADIUS_M).normalize();
+    let up = local_up(pos_m);
     let axis = z.cross(&up);
     let sin = axis.norm();
     if sin.is_nan() || sin <= 1e-12 || !up.iter().all(|c| c.is_finite()) {
@@ -208,6 +225,11 @@ pub struct HybridTracker {
     stats: HybridStats,
     /// The windowed NIS of the running filter's nominal innovations.
     nis: NisWindow,
+    /// The aircraft's learned measurement noise. Kept when a gap restarts the track: it
+    /// is the transponder's and the receiver's, not the track's.
+    noise: NoiseLearner,
+    /// The aircraft declares its position accuracy ([`Tracker::set_accuracy_declared`]).
+    accuracy_declared: bool,
 }
 
 impl Default for HybridTracker {
@@ -237,6 +259,8 @@ impl HybridTracker {
             divergence_events: 0,
             stats: HybridStats::default(),
             nis: NisWindow::default(),
+            noise: NoiseLearner::default(),
+            accuracy_declared: false,
         }
     }
 
@@ -297,8 +321,15 @@ impl HybridTracker {
                     guarded_update(&pred, obs, &self.params.divergence, self.cv_divergence_run)?;
                 *x = g.x;
                 *p = g.p;
-                self.diverging = g.diverged;
+                // Published: a divergence the suppressor acts on (paper 000's criterion on
+                // `confirm` consecutive reports), not each chance event; a consistent
+                // filter meets the criterion on a few % of reports, four in a row almost
+                // never (module doc of `divergence`).
+                self.diverging = g.run >= self.params.divergence.confirm;
                 self.cv_divergence_run = g.run;
+                let [pos, vel] = g.blocks;
+                self.noise.position.learn(&pos, &self.params.noise);
+                self.noise.velocity.learn(&vel, &self.params.noise);
                 if matches!(obs, Observation::Position(_)) {
                     // Only a report without a velocity may feed the gate a derived one.
                     // Only the velocity block of Adapt·Φ P Φᵀ + Q − P(k|k) is needed.
@@ -312,7 +343,7 @@ impl HybridTracker {
             Branch::Imm { .. } => {
                 self.imm.step(dt_s, obs)?;
                 let best = self.imm.most_probable();
-                self.diverging = self.imm.diverged(best);
+                self.diverging = self.imm.divergence_run(best) >= self.params.divergence.confirm;
                 self.velocity_correction_cov = *self.imm.velocity_correction_cov();
                 self.cv_divergence_run = 0;
                 self.stats.imm_updates += 1;
@@ -373,6 +404,14 @@ impl HybridTracker {
         mu[ImmMode::Cv.index()] = rest;
         mu[target.index()] = e;
         Some(mu)
+    }
+
+    /// The filter's current position in the track's frame, m.
+    fn position_m(&self) -> Vector3<f64> {
+        match &self.branch {
+            Branch::Cv { x, .. } => x.fixed_rows::<3>(0).into_owned(),
+            Branch::Imm { .. } => self.imm.combined_state().fixed_rows::<3>(0).into_owned(),
+        }
     }
 
     /// The turn rate for the CT models: the rate of the current turn since it began, as the
@@ -516,6 +555,17 @@ impl HybridTracker {
         }
     }
 
+    /// `est` with the correlated position error the filter does not carry added to its
+    /// horizontal position covariance (a consider covariance, [`super::noise`] module doc).
+    fn with_position_bias(&self, mut est: Estimate) -> Estimate {
+        let b = self.noise.position_bias_var(self.accuracy_declared);
+        if b > 0.0 {
+            est.pos_cov_m2[(0, 0)] += b;
+            est.pos_cov_m2[(1, 1)] += b;
+        }
+        est
+    }
+
     /// The model of the current label, for prediction (paper 002 §1.3).
     fn label_model(&self) -> Model {
         let mode = match (self.labels.mode, self.labels.turn) {
@@ -531,8 +581,16 @@ impl HybridTracker {
 }
 
 impl Tracker for HybridTracker {
+    /// A new track; the learned measurement noise is kept (it is the aircraft's).
     fn reset(&mut self) {
+        let (noise, declared) = (self.noise, self.accuracy_declared);
         *self = Self::new(self.params);
+        self.noise = noise;
+        self.accuracy_declared = declared;
+    }
+
+    fn set_accuracy_declared(&mut self, declared: bool) {
+        self.accuracy_declared = declared;
     }
 
     fn name(&self) -> &'static str {
@@ -548,6 +606,22 @@ impl Tracker for HybridTracker {
                 Ok(())
             }
             Start::Running => {
+                // The report with the learned noise: the filter and the gate weigh it so.
+                if let Some(o) = &m.position {
+                    self.noise.note_position(o);
+                }
+                let up = local_up(&self.position_m());
+                let m = &Measurement {
+                    t_s: m.t_s,
+                    position: m
+                        .position
+                        .as_ref()
+                        .map(|o| self.noise.position.apply(o, &up)),
+                    velocity: m
+                        .velocity
+                        .as_ref()
+                        .map(|o| self.noise.velocity.apply(o, &up)),
+                };
                 let Some(obs) = Observation::of(m.position.as_ref(), m.velocity.as_ref()) else {
                     return Ok(());
                 };
@@ -564,13 +638,14 @@ impl Tracker for HybridTracker {
     fn estimate(&self) -> Option<Estimate> {
         let t_s = self.init.track_t_s()?;
         let info = self.info();
-        Some(match &self.branch {
+        let est = match &self.branch {
             Branch::Cv { x, p } => estimate_of(t_s, x, p, &info),
             Branch::Imm { .. } => {
                 let (x, p) = self.imm.combined();
                 estimate_of(t_s, &x, &p, &info)
             }
-        })
+        };
+        Some(self.with_position_bias(est))
     }
 
     /// Extrapolates by the current label's model (paper 002 §1.3), its Q added; CT at the
@@ -582,7 +657,7 @@ impl Tracker for HybridTracker {
             return None;
         }
         let info = self.info();
-        Some(match &self.branch {
+        let est = match &self.branch {
             Branch::Cv { x, p } => {
                 let (mut x, mut p) = (*x, *p);
                 MotionModel::<6>::predict(&self.params.cv, &mut x, &mut p, dt_s);
@@ -593,7 +668,8 @@ impl Tracker for HybridTracker {
                 self.label_model().predict(&mut x, &mut p, dt_s);
                 estimate_of(t_s, &x, &p, &info)
             }
-        })
+        };
+        Some(self.with_position_bias(est))
     }
 }
 
@@ -1083,10 +1159,13 @@ mod tests {
         // Straight legs: no worse than the CV filter (with or without paper 000), and as
         // good as the IMM: with ADS-B velocity in every report all three sit at the same
         // measurement-limited floor (measured: equal to 0.1 %), so "<" is asserted within
-        // that floor.
+        // that floor. The hybrid learns the measurement noise (`noise`); here the noise is
+        // exactly what the reports declare, so learning can only scatter about it: 0.3 %
+        // (2.223 m against the IMM's 2.216 m on 20 runs), the price of the gains on
+        // undeclared and correlated noise (docs/evaluation.md).
         assert!(h.pos(STRAIGHT) <= r.cv.pos(STRAIGHT));
         assert!(h.pos(STRAIGHT) <= r.cv_plain.pos(STRAIGHT));
-        assert!(h.pos(STRAIGHT) <= 1.002 * i.pos(STRAIGHT));
+        assert!(h.pos(STRAIGHT) <= 1.006 * i.pos(STRAIGHT));
         // Turns: within 5 % of the IMM, better than the CV filter.
         assert!(h.pos(TURN) <= 1.05 * i.pos(TURN));
         assert!(h.pos(TURN) < r.cv.pos(TURN) && h.pos(TURN) < r.cv_plain.pos(TURN));

@@ -383,6 +383,11 @@ impl Imm {
         self.diverged[mode.index()]
     }
 
+    /// Consecutive divergence events of `mode`'s filter up to the last step.
+    pub fn divergence_run(&self, mode: ImmMode) -> u32 {
+        self.divergence_runs.get(mode.index()).copied().unwrap_or(0)
+    }
+
     /// The NIS of `mode`'s filter at the last step (NaN before one, or when it failed).
     pub fn nis(&self, mode: ImmMode) -> f64 {
         self.nis.get(mode.index()).copied().unwrap_or(f64::NAN)
@@ -888,7 +893,9 @@ impl ImmTracker {
             labels,
             mode_probabilities: self.imm.flight_mode_probabilities(),
             filter: IMM_NAME,
-            diverging: self.imm.diverged(best),
+            // A divergence the suppressor acts on (`confirm` events in a row), not each
+            // chance event: as the hybrid publishes it.
+            diverging: self.imm.divergence_run(best) >= self.params.imm.divergence.confirm,
             divergence_events: self.imm.divergence_events()[best.index()],
             nis: self.nis.stat(),
         }

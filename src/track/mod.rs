@@ -17,6 +17,7 @@ pub mod jerk;
 pub mod kalman;
 pub mod models;
 pub mod nis;
+pub mod noise;
 pub mod singer;
 pub mod vsimm;
 
@@ -152,7 +153,8 @@ pub struct Estimate {
     pub mode_probabilities: [f64; 5],
     /// Which filter produced this estimate (e.g. "kalman-cv").
     pub filter: &'static str,
-    /// True while a divergence criterion holds (paper 000).
+    /// True while paper 000's criterion has held on the last `confirm` reports in a row
+    /// (the suppressor acts): a divergence, not a chance event.
     pub diverging: bool,
     /// Divergence events counted over the track's life.
     pub divergence_events: u64,
@@ -223,6 +225,12 @@ pub trait Tracker: Send {
     /// estimate that went non-finite or left the globe, and for an aircraft that reappears
     /// too far from where its track's plane was laid.
     fn reset(&mut self);
+
+    /// Whether the aircraft declares its position accuracy (NACp), so that the position
+    /// covariance it reports is that declaration rather than a fall-back on the type code's
+    /// NUCp. The daemon says so before each report. Ignored by default; the hybrid tracker
+    /// bounds the total error it publishes by a declaration ([`noise`]).
+    fn set_accuracy_declared(&mut self, _declared: bool) {}
 }
 
 /// The alternative trackers of papers 000, 001 and 003 by name, with default parameters:

@@ -1,0 +1,379 @@
+//! Measurement noise learned per aircraft from its own innovations (issue 10).
+//!
+//! ADS-B declares its accuracy (NACp, NACv; NUCp on older transponders) as a 95 % bound,
+//! not as a noise level, and many aircraft declare nothing: a filter that takes the bound
+//! literally is far too sure of itself on one aircraft and far too cautious on the next
+//! (on the LAX recording the aircraft declaring NACp 10 show a median NIS per degree of
+//! freedom of 2-5; the AFR34ZG flight, declaring nothing, 0.05). So each aircraft scales
+//! the declared covariance R₀ of each measured block (position, velocity) by a factor λ
+//! it learns:
+//!
+//! - **Method**: covariance matching on the innovations (Mehra 1972, "Approaches to
+//!   adaptive filtering", IEEE TAC 17(5), §III-B; in navigation "innovation-based adaptive
+//!   estimation", Mohamed & Schwarz 1999, J. Geodesy 73, eq. 22): for a filter at its
+//!   optimum E[ε εᵀ] = H P⁻ Hᵀ + R, so R̂ = Ĉ_ε − H P⁻ Hᵀ over a window. Only the scale
+//!   is learned, from traces over the horizontal components of the block:
+//!   λ̂ = (εᵀε − Tr(H P⁻ Hᵀ)) / Tr(R₀), one sample per report, averaged.
+//! - **Horizontal only**: NACp and NACv describe the GNSS solution's horizontal accuracy,
+//!   and that is what is learned and scaled. The vertical is another sensor whose noise is
+//!   known: barometric altitude in 25 ft steps, vertical rate in 64 ft/min steps, constant in
+//!   level flight (their innovations there are zero, and would teach a zero noise).
+//! - **Prior and bound**: the declared R₀ is the prior, worth [`NoiseParams::prior_weight`]
+//!   samples of λ = 1, and λ is kept in [`NoiseParams::min_scale`, `NoiseParams::max_scale`]:
+//!   the declaration bounds what is learned (σ between a twentieth and four times what it
+//!   implies, by default). A sample is winsorised at `max_scale` before it is averaged, so
+//!   one wild report moves λ by at most `max_scale / window`. The factor applied, λ', is λ
+//!   shrunk towards 1 by twice its standard error ([`NoiseScale::effective`]): a
+//!   declaration the data do not contradict is used as it is.
+//! - **Window**: an exponentially weighted mean over about [`NoiseParams::window`] reports
+//!   (50 s of ADS-B at 2 Hz): slow against a manoeuvre's onset, fast against a flight.
+//! - **Correlated error** (a consider covariance, after Schmidt 1966 and Bierman 1977
+//!   §VII.2): a GNSS position error wanders over tens of seconds, and a filter that averages
+//!   2 Hz reports as independent shrinks its covariance far below it; the innovations do not
+//!   show such an error either, since the track follows it. A declared NACp bounds the
+//!   *total* error, so the part of the declared variance that the innovations do not show as
+//!   white noise, σ₀²·max(0, 1 − λ') per horizontal axis, is taken as slowly correlated and
+//!   added to the published position covariance ([`NoiseLearner::position_bias_var`]). For
+//!   an error whose time constant exceeds the filter's memory (seconds) the filter passes it
+//!   through whole, so this is its error covariance; a loose declaration makes it cautious.
+//!   With nothing declared (the NUCp fall-back is a containment bound of the type code, not
+//!   of this aircraft) nothing is added.
+//! - **When**: the owner decides. The hybrid tracker learns only while its CV filter runs
+//!   (level or steady flight): in a manoeuvre the innovations measure the model's error,
+//!   not the receiver's, and would teach the filter to ignore the next manoeuvre.
+
+use super::Observed;
+#[cfg(test)]
+use super::UNMEASURED_VARIANCE;
+use nalgebra::{Matrix3, Vector3};
+
+/// Tuning of the learner.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct NoiseParams {
+    /// Learn at all; `false` keeps λ = 1 (the declared R). Default true.
+    pub enabled: bool,
+    /// Weight of the declared R₀ (λ = 1) in the mean, in reports. Default 10: five seconds
+    /// of reports before the data outweigh the declaration.
+    pub prior_weight: f64,
+    /// Reports in the exponential window. Default 100.
+    pub window: f64,
+    /// Lower bound on λ. Default 1/400 (σ a twentieth of the declared: a NACv 1 bound of
+    /// 10 m/s is a σ of 4 m/s, and real reports scatter by a few tenths).
+    pub min_scale: f64,
+    /// Upper bound on λ. Default 16 (σ four times the declared).
+    pub max_scale: f64,
+}
+
+impl Default for NoiseParams {
+    fn default() -> Self {
+        Self {
+            enabled: true,
+            prior_weight: 10.0,
+            window: 100.0,
+            min_scale: 1.0 / 400.0,
+            max_scale: 16.0,
+        }
+    }
+}
+
+/// One block's share of an update, over its measured horizontal components: what
+/// covariance matching reads.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct BlockStat {
+    /// εᵀε of the nominal innovation, m² or m²/s².
+    pub e2: f64,
+    /// Tr(S) of the nominal innovation covariance.
+    pub tr_s: f64,
+    /// Tr(R) as used in the update (λ R₀).
+    pub tr_r: f64,
+}
+
+impl BlockStat {
+    /// Whether the block was measured at all.
+    pub fn measured(&self) -> bool {
+        self.tr_r > 0.0
+    }
+}
+
+/// One block's learned scale λ.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct NoiseScale {
+    lambda: f64,
+    /// Samples seen (capped at the window).
+    n: f64,
+    /// Exponentially weighted mean of (sample − λ)²: the samples' scatter, for λ's standard
+    /// error.
+    scatter: f64,
+    /// The weight of the last sample in λ (1 / (n + prior)).
+    weight: f64,
+}
+
+impl Default for NoiseScale {
+    fn default() -> Self {
+        Self {
+            lambda: 1.0,
+            n: 0.0,
+            scatter: 0.0,
+            weight: 1.0,
+        }
+    }
+}
+
+impl NoiseScale {
+    /// λ: the factor on the declared covariance.
+    pub fn lambda(&self) -> f64 {
+        self.lambda
+    }
+
+    /// The factor applied: λ shrunk towards 1 by twice its standard error (a soft
+    /// threshold), so that a declaration the data do not contradict is used as declared.
+    /// Learning a noise that is exactly as declared would otherwise only add λ's scatter
+    /// (0.4 % of straight-leg RMSE on paper 002, where every report declares its true
+    /// noise).
+    pub fn effective(&self) -> f64 {
+        let margin = 2.0 * self.lambda_std_err();
+        let d = self.lambda - 1.0;
+        1.0 + d.signum() * (d.abs() - margin).max(0.0)
+    }
+
+    /// λ's standard error: the samples' scatter through the exponential window, whose
+    /// estimate has the variance of a mean of 2/w − 1 samples (w the newest sample's weight).
+    pub fn lambda_std_err(&self) -> f64 {
+        (self.scatter * self.weight / (2.0 - self.weight).max(1.0)).sqrt()
+    }
+
+    /// Learns from one update of the block, made with R = λ R₀ (`stat.tr_r`).
+    pub fn learn(&mut self, stat: &BlockStat, params: &NoiseParams) {
+        if !params.enabled || !stat.measured() || self.lambda <= 0.0 {
+            return;
+        }
+        let tr_r0 = stat.tr_r / self.lambda;
+        let tr_hph = (stat.tr_s - stat.tr_r).max(0.0);
+        // While the state is less certain than the report (a young track, a long gap), the
+        // innovation mostly measures the state's error: εᵀε − Tr(H P⁻ Hᵀ) is then a small
+        // difference of large numbers, often far below zero, and says little about R.
+        if tr_hph > stat.tr_r {
+            return;
+        }
+        let lo = params.min_scale.min(params.max_scale);
+        let sample = ((stat.e2 - tr_hph) / tr_r0).clamp(lo, params.max_scale);
+        if !sample.is_finite() || tr_r0 <= 0.0 {
+            return;
+        }
+        // The mean of (prior_weight × 1, samples...), forgetting beyond the window.
+        self.n = (self.n + 1.0).min(params.window);
+        let weight = 1.0 / (self.n + params.prior_weight.max(0.0));
+        let d = sample - self.lambda;
+        self.scatter += weight * (d * d - self.scatter);
+        self.weight = weight;
+        self.lambda = (self.lambda + weight * d).clamp(lo, params.max_scale);
+    }
+
+    /// `o` with its horizontal covariance scaled by λ, horizontal meaning perpendicular to
+    /// `up` (the local vertical at the aircraft, a unit vector in the track's frame):
+    /// D R D with D = I + (√λ − 1)(I − u uᵀ), a congruence, so the result is a covariance
+    /// whatever R is. For a report made as R = h (I − u uᵀ) + v u uᵀ it gives exactly
+    /// λ h (I − u uᵀ) + v u uᵀ: the vertical variance, and an unmeasured vertical's
+    /// [`UNMEASURED_VARIANCE`], untouched. (Scaling the frame's own x and y instead is wrong
+    /// far from the frame's origin: there the huge variance of an unmeasured altitude,
+    /// tilted, lies partly along them, and the known horizontal would leak into it.)
+    pub fn apply(&self, o: &Observed, up: &Vector3<f64>) -> Observed {
+        let lambda = self.effective();
+        if lambda == 1.0 {
+            return *o;
+        }
+        let horizontal = Matrix3::identity() - up * up.transpose();
+        let d = Matrix3::identity() + horizontal * (lambda.sqrt() - 1.0);
+        Observed {
+            value: o.value,
+            cov: d * o.cov * d,
+        }
+    }
+
+    /// Forgets everything learned: back to the declared R.
+    pub fn clear(&mut self) {
+        *self = Self::default();
+    }
+}
+
+/// The learned scales of an aircraft's position and velocity reports.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct NoiseLearner {
+    /// Position reports.
+    pub position: NoiseScale,
+    /// Velocity reports.
+    pub velocity: NoiseScale,
+    /// The last position report's declared horizontal variance per axis, m² (0 before one).
+    declared_pos_var_m2: f64,
+}
+
+impl NoiseLearner {
+    /// Notes the declared (unscaled) covariance of a position report.
+    pub fn note_position(&mut self, declared: &Observed) {
+        let v = 0.5 * (declared.cov[(0, 0)] + declared.cov[(1, 1)]);
+        if v.is_finite() && v > 0.0 {
+            self.declared_pos_var_m2 = v;
+        }
+    }
+
+    /// The correlated position error's variance per horizontal axis, m² (module doc): the
+    /// declared variance the white noise leaves unexplained; 0 when nothing is declared.
+    pub fn position_bias_var(&self, accuracy_declared: bool) -> f64 {
+        if !accuracy_declared {
+            return 0.0;
+        }
+        // Only what λ misses by more than twice its standard error: a white noise as
+        // declared gives λ scattering about 1, and that scatter is not a bias.
+        self.declared_pos_var_m2 * (1.0 - self.position.effective()).max(0.0)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A scalar random walk of position measured with noise σ_true while the filter is told
+    /// σ₀: the learned λ must approach (σ_true/σ₀)², within the bounds.
+    fn learned_lambda(sigma_true: f64, sigma0: f64, steps: usize) -> f64 {
+        // Deterministic normal samples (Box-Muller on a xorshift).
+        let mut state = 0x9E37_79B9_7F4A_7C15_u64;
+        let mut uniform = || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let mut normal = || {
+            let (u1, u2) = (uniform().max(1e-300), uniform());
+            (-2.0 * u1.ln()).sqrt() * (2.0 * std::f64::consts::PI * u2).cos()
+        };
+        let params = NoiseParams::default();
+        let mut scale = NoiseScale::default();
+        // A 1-D Kalman filter on a constant, three identical axes.
+        let (mut x, mut p) = (0.0_f64, 1.0e6_f64);
+        let q = 0.01;
+        for _ in 0..steps {
+            p += q;
+            let r = sigma0 * sigma0 * scale.lambda();
+            let mut e2 = 0.0;
+            let z = [
+                sigma_true * normal(),
+                sigma_true * normal(),
+                sigma_true * normal(),
+            ];
+            let s = p + r;
+            for zi in z {
+                e2 += (zi - x) * (zi - x);
+            }
+            let stat = BlockStat {
+                e2,
+                tr_s: 3.0 * s,
+                tr_r: 3.0 * r,
+            };
+            // The update (three independent looks at one scalar, for brevity).
+            let mean_z = (z[0] + z[1] + z[2]) / 3.0;
+            let k = p / (p + r / 3.0);
+            x += k * (mean_z - x);
+            p *= 1.0 - k;
+            scale.learn(&stat, &params);
+        }
+        scale.lambda()
+    }
+
+    #[test]
+    fn learns_a_noise_larger_and_smaller_than_declared() {
+        let up = learned_lambda(10.0, 5.0, 2000);
+        assert!((3.0..5.0).contains(&up), "λ {up}, want about 4");
+        let down = learned_lambda(2.0, 5.0, 2000);
+        assert!((0.10..0.25).contains(&down), "λ {down}, want about 0.16");
+        let same = learned_lambda(5.0, 5.0, 2000);
+        assert!((0.75..1.3).contains(&same), "λ {same}, want about 1");
+    }
+
+    #[test]
+    fn bounded_by_the_declaration() {
+        // Every sample is winsorised at the bound, so λ ends just inside it.
+        let p = NoiseParams::default();
+        let far = learned_lambda(100.0, 5.0, 2000);
+        assert!((0.95 * p.max_scale..=p.max_scale).contains(&far), "{far}");
+        let tiny = learned_lambda(0.01, 5.0, 2000);
+        assert!((p.min_scale..=1.05 * p.min_scale).contains(&tiny), "{tiny}");
+    }
+
+    #[test]
+    fn the_prior_holds_until_data_outweigh_it() {
+        let params = NoiseParams::default();
+        let mut scale = NoiseScale::default();
+        // One report with a huge innovation moves λ by at most max_scale / (1 + prior).
+        scale.learn(
+            &BlockStat {
+                e2: 1.0e9,
+                tr_s: 2.0,
+                tr_r: 1.0,
+            },
+            &params,
+        );
+        let most = 1.0 + (params.max_scale - 1.0) / (1.0 + params.prior_weight);
+        assert!((scale.lambda() - most).abs() < 1e-12, "{}", scale.lambda());
+        // An unmeasured block teaches nothing.
+        let before = scale;
+        scale.learn(&BlockStat::default(), &params);
+        assert_eq!(scale, before);
+    }
+
+    #[test]
+    fn the_unexplained_declared_variance_is_the_bias() {
+        let mut learner = NoiseLearner::default();
+        let declared = Observed {
+            value: Vector3::zeros(),
+            cov: Matrix3::from_diagonal(&Vector3::new(16.0, 16.0, 9.0)),
+        };
+        learner.note_position(&declared);
+        assert_eq!(learner.position_bias_var(true), 0.0, "λ = 1: all white");
+        learner.position.lambda = 0.25;
+        assert_eq!(learner.position_bias_var(true), 12.0);
+        assert_eq!(learner.position_bias_var(false), 0.0, "nothing declared");
+        learner.position.lambda = 4.0;
+        assert_eq!(
+            learner.position_bias_var(true),
+            0.0,
+            "noisier than declared"
+        );
+    }
+
+    #[test]
+    fn apply_scales_the_local_horizontal_only() {
+        let scale = NoiseScale {
+            lambda: 4.0,
+            ..NoiseScale::default()
+        };
+        let o = Observed {
+            value: Vector3::new(1.0, 2.0, 3.0),
+            cov: Matrix3::from_diagonal(&Vector3::new(1.0, 1.0, 3.0)),
+        };
+        let want = Matrix3::from_diagonal(&Vector3::new(4.0, 4.0, 3.0));
+        assert!((scale.apply(&o, &Vector3::z()).cov - want).norm() < 1e-12);
+        // Far from the frame's origin the local vertical is tilted (6 degrees here) and an
+        // unmeasured altitude's variance lies partly along the frame's x: the scaled report
+        // is the one made in the local axes with λ h, exactly.
+        let tilt = nalgebra::Rotation3::from_axis_angle(&Vector3::y_axis(), 6f64.to_radians());
+        let up = tilt * Vector3::z();
+        let local = |h: f64| {
+            tilt.matrix()
+                * Matrix3::from_diagonal(&Vector3::new(h, h, UNMEASURED_VARIANCE))
+                * tilt.matrix().transpose()
+        };
+        let unmeasured = Observed {
+            value: o.value,
+            cov: local(1444.0),
+        };
+        let scaled = scale.apply(&unmeasured, &up).cov;
+        let exact = local(4.0 * 1444.0);
+        assert!(
+            (scaled - exact).norm() < 1e-6 * exact.norm(),
+            "{scaled} {exact}"
+        );
+        assert!((scaled - scaled.transpose()).norm() < 1e-9);
+        assert!(scaled.cholesky().is_some());
+    }
+}

@@ -406,6 +406,7 @@ impl TrackerConfig {
             ..ImmTrackerParams::default()
         };
         p.init.max_gap_s = self.max_gap_s;
+        p.noise = self.hybrid_params(false)?.noise;
         Ok(p)
     }
 

@@ -38,7 +38,7 @@ use super::imm::{
 use super::kalman::MotionModel;
 use super::models::{Cv, Matrix6, Matrix9, Model, State6, State9, ACC};
 use super::nis::NisWindow;
-use super::noise::{NoiseLearner, NoiseParams};
+use super::noise::{local_up, NoiseLearner, NoiseParams};
 use super::{
     Estimate, FlightMode, Lateral, Measurement, Observed, TrackError, Tracker, TurnDirection,
 };
@@ -125,20 +125,6 @@ impl HybridParams {
             gate: GateParams::paper002(),
             ..Self::default()
         }
-    }
-}
-
-/// Mean Earth radius, m (IUGG R1), for [`to_local_axes`].
-const EARTH_RADIUS_M: f64 = 6_371_008.8;
-
-/// The local vertical of a spherical Earth at `pos_m` (a position in the track's frame), a
-/// unit vector in the frame; the frame's own up where that is not finite.
-fn local_up(pos_m: &Vector3<f64>) -> Vector3<f64> {
-    let up = (pos_m + Vector3::z() * EARTH_RADIUS_M).normalize();
-    if up.iter().all(|c| c.is_finite()) {
-        up
-    } else {
-        Vector3::z()
     }
 }
 
@@ -676,6 +662,7 @@ impl Tracker for HybridTracker {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::track::noise::EARTH_RADIUS_M;
 
     #[test]
     fn local_axes_take_out_the_tilt_of_a_distant_level_flight() {

@@ -23,6 +23,7 @@
 use super::divergence::{guarded_update, DivergenceParams, Observation, Prediction};
 use super::kalman::{self, MotionModel};
 use super::models::{Ca, Ch, Chca, Ct, Cv, Matrix9, Model, State9, ACC, POS, VEL};
+use super::noise::{local_up, BlockStat, NoiseLearner, NoiseParams};
 use super::{
     Estimate, FlightMode, Lateral, Measurement, Observed, SpeedTrend, TrackError, Tracker,
     TurnDirection, VerticalTrend,
@@ -258,6 +259,8 @@ pub struct Imm {
     divergence_events: [u64; N_MODES],
     /// Each mode's NIS at the last step (nominal innovation; NaN when its update failed).
     nis: [f64; N_MODES],
+    /// The CV model's innovation blocks at the last step, for [`super::noise`].
+    cv_blocks: [BlockStat; 2],
 }
 
 impl Imm {
@@ -273,6 +276,7 @@ impl Imm {
             velocity_correction_cov: Matrix3::zeros(),
             divergence_events: [0; N_MODES],
             nis: [f64::NAN; N_MODES],
+            cv_blocks: [BlockStat::default(); 2],
         };
         imm.mu = imm.normalised(&params.initial_probabilities);
         imm
@@ -383,6 +387,12 @@ impl Imm {
         self.diverged[mode.index()]
     }
 
+    /// The CV model's nominal innovation blocks (position, velocity) at the last step;
+    /// zeros when it was not updated.
+    pub fn cv_blocks(&self) -> &[BlockStat; 2] {
+        &self.cv_blocks
+    }
+
     /// Consecutive divergence events of `mode`'s filter up to the last step.
     pub fn divergence_run(&self, mode: ImmMode) -> u32 {
         self.divergence_runs.get(mode.index()).copied().unwrap_or(0)
@@ -480,6 +490,7 @@ impl Imm {
         let mut runs = [0; N_MODES];
         let mut corrections = [Matrix3::zeros(); N_MODES];
         let mut nis = [f64::NAN; N_MODES];
+        let mut cv_blocks = [BlockStat::default(); 2];
         let mut first_error = None;
         let mut any_ok = false;
         for j in 0..N_MODES {
@@ -508,6 +519,9 @@ impl Imm {
                     diverged[j] = g.diverged;
                     runs[j] = g.run;
                     nis[j] = g.nis;
+                    if j == ImmMode::Cv.index() {
+                        cv_blocks = g.blocks;
+                    }
                     corrections[j] =
                         pred.covariance_block3(g.adapt, VEL) - g.p.fixed_view::<3, 3>(VEL, VEL);
                     if g.log_likelihood.is_finite() {
@@ -536,6 +550,7 @@ impl Imm {
             // No finite likelihood: keep the predicted probabilities.
             mu = self.normalised(&c_bar);
         }
+        self.cv_blocks = cv_blocks;
         let states = self.states_mut();
         states.x = x_new;
         states.p = p_new;
@@ -827,7 +842,14 @@ pub struct ImmTrackerParams {
     pub init: InitParams,
     /// Movement-axis thresholds read from the combined state.
     pub axes: AxisThresholds,
+    /// The measurement noise learned per aircraft ([`super::noise`]), from the CV model's
+    /// innovations while CV holds at least [`LEARN_CV_PROBABILITY`].
+    pub noise: NoiseParams,
 }
+
+/// The plain IMM learns the measurement noise only while its CV mode is this probable: the
+/// other models' innovations, and CV's in a manoeuvre, carry model error.
+pub const LEARN_CV_PROBABILITY: f64 = 0.9;
 
 /// Thresholds turning a state into the I062/200 movement axes.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -861,6 +883,10 @@ pub struct ImmTracker {
     imm: Imm,
     init: Initiator,
     nis: super::nis::NisWindow,
+    /// The aircraft's learned measurement noise, kept across restarts.
+    noise: NoiseLearner,
+    /// The aircraft declares its position accuracy ([`Tracker::set_accuracy_declared`]).
+    accuracy_declared: bool,
 }
 
 impl Default for ImmTracker {
@@ -877,7 +903,20 @@ impl ImmTracker {
             imm: Imm::new(params.imm),
             init: Initiator::new(params.init, &params.imm.models.cv),
             nis: super::nis::NisWindow::default(),
+            noise: NoiseLearner::default(),
+            accuracy_declared: false,
         }
+    }
+
+    /// `est` with the correlated position error the filter does not carry added to its
+    /// horizontal position covariance ([`super::noise`]).
+    fn with_position_bias(&self, mut est: Estimate) -> Estimate {
+        let b = self.noise.position_bias_var(self.accuracy_declared);
+        if b > 0.0 {
+            est.pos_cov_m2[(0, 0)] += b;
+            est.pos_cov_m2[(1, 1)] += b;
+        }
+        est
     }
 
     /// The estimator.
@@ -940,8 +979,16 @@ pub(crate) fn labels_of_mode(mode: ImmMode, x: &State9, axes: &AxisThresholds) -
 }
 
 impl Tracker for ImmTracker {
+    /// A new track; the learned measurement noise is kept (it is the aircraft's).
     fn reset(&mut self) {
+        let (noise, declared) = (self.noise, self.accuracy_declared);
         *self = Self::new(self.params);
+        self.noise = noise;
+        self.accuracy_declared = declared;
+    }
+
+    fn set_accuracy_declared(&mut self, declared: bool) {
+        self.accuracy_declared = declared;
     }
 
     fn name(&self) -> &'static str {
@@ -958,11 +1005,34 @@ impl Tracker for ImmTracker {
                 Ok(())
             }
             Start::Running => {
+                if let Some(o) = &m.position {
+                    self.noise.note_position(o);
+                }
+                let up = local_up(&self.imm.combined_state().fixed_rows::<3>(POS).into_owned());
+                let m = &Measurement {
+                    t_s: m.t_s,
+                    position: m
+                        .position
+                        .as_ref()
+                        .map(|o| self.noise.position.apply(o, &up)),
+                    velocity: m
+                        .velocity
+                        .as_ref()
+                        .map(|o| self.noise.velocity.apply(o, &up)),
+                };
                 let Some(obs) = Observation::of(m.position.as_ref(), m.velocity.as_ref()) else {
                     return Ok(());
                 };
                 let dt_s = m.t_s - track_t_s.unwrap_or(m.t_s);
+                // CV's probability before this report: a manoeuvre that starts here shows
+                // first as CV's innovation, and is learned from once at most.
+                let steady = self.imm.probabilities()[ImmMode::Cv.index()] >= LEARN_CV_PROBABILITY;
                 self.imm.step(dt_s, &obs)?;
+                if steady {
+                    let [pos, vel] = *self.imm.cv_blocks();
+                    self.noise.position.learn(&pos, &self.params.noise);
+                    self.noise.velocity.learn(&vel, &self.params.noise);
+                }
                 self.init.advance(m.t_s);
                 self.nis.push(
                     self.imm.nis(self.imm.most_probable()),
@@ -976,7 +1046,7 @@ impl Tracker for ImmTracker {
     fn estimate(&self) -> Option<Estimate> {
         let t_s = self.init.track_t_s()?;
         let (x, p) = self.imm.combined();
-        Some(estimate_of(t_s, &x, &p, &self.info()))
+        Some(self.with_position_bias(estimate_of(t_s, &x, &p, &self.info())))
     }
 
     /// Extrapolates the combined estimate by the most probable mode's model (paper 002
@@ -991,7 +1061,7 @@ impl Tracker for ImmTracker {
         self.imm
             .model(self.imm.most_probable())
             .predict(&mut x, &mut p, dt_s);
-        Some(estimate_of(t_s, &x, &p, &self.info()))
+        Some(self.with_position_bias(estimate_of(t_s, &x, &p, &self.info())))
     }
 }
 

@@ -47,6 +47,21 @@ use super::Observed;
 use super::UNMEASURED_VARIANCE;
 use nalgebra::{Matrix3, Vector3};
 
+/// Mean Earth radius, m (IUGG R1), for [`local_up`].
+pub(crate) const EARTH_RADIUS_M: f64 = 6_371_008.8;
+
+/// The local vertical of a spherical Earth at `pos_m` (a position in a track's tangent
+/// frame), a unit vector in the frame; the frame's own up where that is not finite. The
+/// sphere's normal differs from the ellipsoid's by a fraction of a percent of the tilt.
+pub fn local_up(pos_m: &Vector3<f64>) -> Vector3<f64> {
+    let up = (pos_m + Vector3::z() * EARTH_RADIUS_M).normalize();
+    if up.iter().all(|c| c.is_finite()) {
+        up
+    } else {
+        Vector3::z()
+    }
+}
+
 /// Tuning of the learner.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct NoiseParams {

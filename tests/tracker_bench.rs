@@ -237,21 +237,27 @@ fn learned_noise_on_undeclared_and_correlated_errors() {
     let (lo, hi) = chi2_band_95(2.0, runs as f64);
     let anees = |s: &Scores| s.estimates["all"].anees_pos().unwrap();
     let delay = |s: &Scores| s.mean_detection_delay_s().unwrap();
+    // The scenario taken literally and learned, and a line saying both.
+    let both = |scenario: &str| {
+        let before = run_with(scenario, &["hybrid"], runs, &literal).remove(0);
+        let after = run_with(scenario, &["hybrid"], runs, &learned).remove(0);
+        let report = format!(
+            "{scenario}: ANEES {:.2} -> {:.2} [{lo:.2}, {hi:.2}], onset {:.2} -> {:.2} s, \
+             RMSE {:.2} -> {:.2} m",
+            anees(&before),
+            anees(&after),
+            delay(&before),
+            delay(&after),
+            rmse(&before, "all"),
+            rmse(&after, "all")
+        );
+        (before, after, report)
+    };
 
     // No accuracy declared: R from NUCp's 38 m against a 15 m truth, NACv 1's bound against
     // 0.6 m/s. Taken literally the covariance is ~7x too large and the turn is seen late.
-    let before = &run_with("turns-undeclared", &["hybrid"], runs, &literal)[0];
-    let after = &run_with("turns-undeclared", &["hybrid"], runs, &learned)[0];
-    let report = format!(
-        "turns-undeclared: ANEES {:.2} -> {:.2} [{lo:.2}, {hi:.2}], onset {:.2} -> {:.2} s, \
-         RMSE {:.2} -> {:.2} m",
-        anees(before),
-        anees(after),
-        delay(before),
-        delay(after),
-        rmse(before, "all"),
-        rmse(after, "all")
-    );
+    let (before, after, report) = both("turns-undeclared");
+    let (before, after) = (&before, &after);
     eprintln!("{report}");
     assert!(anees(before) < 0.4, "{report}");
     assert!(anees(after) > lo && anees(after) < hi, "{report}");
@@ -263,17 +269,8 @@ fn learned_noise_on_undeclared_and_correlated_errors() {
     // NACp 9 declared, white 5 m plus a Gauss-Markov bias of 8 m / 60 s: taken literally the
     // filter averages the bias away in its covariance (ANEES ~20); the declared variance the
     // white noise leaves unexplained, published as correlated error, brings it near 2.
-    let before = &run_with("turns-correlated", &["hybrid"], runs, &literal)[0];
-    let after = &run_with("turns-correlated", &["hybrid"], runs, &learned)[0];
-    let report = format!(
-        "turns-correlated: ANEES {:.2} -> {:.2}, onset {:.2} -> {:.2} s, RMSE {:.2} -> {:.2} m",
-        anees(before),
-        anees(after),
-        delay(before),
-        delay(after),
-        rmse(before, "all"),
-        rmse(after, "all")
-    );
+    let (before, after, report) = both("turns-correlated");
+    let (before, after) = (&before, &after);
     eprintln!("{report}");
     assert!(anees(before) > 10.0, "{report}");
     assert!((1.0..3.0).contains(&anees(after)), "{report}");

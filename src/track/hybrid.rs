@@ -541,17 +541,6 @@ impl HybridTracker {
         }
     }
 
-    /// `est` with the correlated position error the filter does not carry added to its
-    /// horizontal position covariance (a consider covariance, [`super::noise`] module doc).
-    fn with_position_bias(&self, mut est: Estimate) -> Estimate {
-        let b = self.noise.position_bias_var(self.accuracy_declared);
-        if b > 0.0 {
-            est.pos_cov_m2[(0, 0)] += b;
-            est.pos_cov_m2[(1, 1)] += b;
-        }
-        est
-    }
-
     /// The model of the current label, for prediction (paper 002 §1.3).
     fn label_model(&self) -> Model {
         let mode = match (self.labels.mode, self.labels.turn) {
@@ -593,21 +582,8 @@ impl Tracker for HybridTracker {
             }
             Start::Running => {
                 // The report with the learned noise: the filter and the gate weigh it so.
-                if let Some(o) = &m.position {
-                    self.noise.note_position(o);
-                }
                 let up = local_up(&self.position_m());
-                let m = &Measurement {
-                    t_s: m.t_s,
-                    position: m
-                        .position
-                        .as_ref()
-                        .map(|o| self.noise.position.apply(o, &up)),
-                    velocity: m
-                        .velocity
-                        .as_ref()
-                        .map(|o| self.noise.velocity.apply(o, &up)),
-                };
+                let m = &self.noise.prepare(m, &up);
                 let Some(obs) = Observation::of(m.position.as_ref(), m.velocity.as_ref()) else {
                     return Ok(());
                 };
@@ -631,7 +607,7 @@ impl Tracker for HybridTracker {
                 estimate_of(t_s, &x, &p, &info)
             }
         };
-        Some(self.with_position_bias(est))
+        Some(self.noise.with_position_bias(est, self.accuracy_declared))
     }
 
     /// Extrapolates by the current label's model (paper 002 §1.3), its Q added; CT at the
@@ -655,7 +631,7 @@ impl Tracker for HybridTracker {
                 estimate_of(t_s, &x, &p, &info)
             }
         };
-        Some(self.with_position_bias(est))
+        Some(self.noise.with_position_bias(est, self.accuracy_declared))
     }
 }
 

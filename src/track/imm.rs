@@ -908,17 +908,6 @@ impl ImmTracker {
         }
     }
 
-    /// `est` with the correlated position error the filter does not carry added to its
-    /// horizontal position covariance ([`super::noise`]).
-    fn with_position_bias(&self, mut est: Estimate) -> Estimate {
-        let b = self.noise.position_bias_var(self.accuracy_declared);
-        if b > 0.0 {
-            est.pos_cov_m2[(0, 0)] += b;
-            est.pos_cov_m2[(1, 1)] += b;
-        }
-        est
-    }
-
     /// The estimator.
     pub fn imm(&self) -> &Imm {
         &self.imm
@@ -1005,21 +994,8 @@ impl Tracker for ImmTracker {
                 Ok(())
             }
             Start::Running => {
-                if let Some(o) = &m.position {
-                    self.noise.note_position(o);
-                }
                 let up = local_up(&self.imm.combined_state().fixed_rows::<3>(POS).into_owned());
-                let m = &Measurement {
-                    t_s: m.t_s,
-                    position: m
-                        .position
-                        .as_ref()
-                        .map(|o| self.noise.position.apply(o, &up)),
-                    velocity: m
-                        .velocity
-                        .as_ref()
-                        .map(|o| self.noise.velocity.apply(o, &up)),
-                };
+                let m = &self.noise.prepare(m, &up);
                 let Some(obs) = Observation::of(m.position.as_ref(), m.velocity.as_ref()) else {
                     return Ok(());
                 };
@@ -1046,7 +1022,10 @@ impl Tracker for ImmTracker {
     fn estimate(&self) -> Option<Estimate> {
         let t_s = self.init.track_t_s()?;
         let (x, p) = self.imm.combined();
-        Some(self.with_position_bias(estimate_of(t_s, &x, &p, &self.info())))
+        Some(self.noise.with_position_bias(
+            estimate_of(t_s, &x, &p, &self.info()),
+            self.accuracy_declared,
+        ))
     }
 
     /// Extrapolates the combined estimate by the most probable mode's model (paper 002
@@ -1061,7 +1040,10 @@ impl Tracker for ImmTracker {
         self.imm
             .model(self.imm.most_probable())
             .predict(&mut x, &mut p, dt_s);
-        Some(self.with_position_bias(estimate_of(t_s, &x, &p, &self.info())))
+        Some(self.noise.with_position_bias(
+            estimate_of(t_s, &x, &p, &self.info()),
+            self.accuracy_declared,
+        ))
     }
 }
 

@@ -42,9 +42,9 @@
 //!   (level or steady flight): in a manoeuvre the innovations measure the model's error,
 //!   not the receiver's, and would teach the filter to ignore the next manoeuvre.
 
-use super::Observed;
 #[cfg(test)]
 use super::UNMEASURED_VARIANCE;
+use super::{Estimate, Measurement, Observed};
 use nalgebra::{Matrix3, Vector3};
 
 /// Mean Earth radius, m (IUGG R1), for [`local_up`].
@@ -229,6 +229,31 @@ impl NoiseLearner {
         if v.is_finite() && v > 0.0 {
             self.declared_pos_var_m2 = v;
         }
+    }
+
+    /// The report a filter uses: `m` with each block's horizontal covariance scaled by what
+    /// was learned ([`NoiseScale::apply`]; `up` the local vertical at the track), its declared
+    /// position covariance noted first for [`NoiseLearner::position_bias_var`].
+    pub fn prepare(&mut self, m: &Measurement, up: &Vector3<f64>) -> Measurement {
+        if let Some(o) = &m.position {
+            self.note_position(o);
+        }
+        Measurement {
+            t_s: m.t_s,
+            position: m.position.as_ref().map(|o| self.position.apply(o, up)),
+            velocity: m.velocity.as_ref().map(|o| self.velocity.apply(o, up)),
+        }
+    }
+
+    /// `est` with the correlated position error the filter does not carry
+    /// ([`NoiseLearner::position_bias_var`]) added to its horizontal position covariance.
+    pub fn with_position_bias(&self, mut est: Estimate, accuracy_declared: bool) -> Estimate {
+        let b = self.position_bias_var(accuracy_declared);
+        if b > 0.0 {
+            est.pos_cov_m2[(0, 0)] += b;
+            est.pos_cov_m2[(1, 1)] += b;
+        }
+        est
     }
 
     /// The correlated position error's variance per horizontal axis, m² (module doc): the

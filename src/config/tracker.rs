@@ -9,6 +9,7 @@ use crate::track::divergence::DivergenceParams;
 use crate::track::gate::{GateParams, GATE_CAPACITY};
 use crate::track::hybrid::HybridParams;
 use crate::track::imm::{ImmParams, ImmTrackerParams, N_MODES};
+use crate::track::noise::NoiseParams;
 use serde::Deserialize;
 
 #[derive(Clone, Debug, Deserialize, PartialEq)]
@@ -406,7 +407,7 @@ impl TrackerConfig {
             ..ImmTrackerParams::default()
         };
         p.init.max_gap_s = self.max_gap_s;
-        p.noise = self.hybrid_params(false)?.noise;
+        p.noise = self.noise_params()?;
         Ok(p)
     }
 
@@ -454,12 +455,21 @@ impl TrackerConfig {
             false,
             1.0,
         )?;
-        p.noise.enabled = h.learn_noise;
+        p.noise = self.noise_params()?;
+        Ok(p)
+    }
+
+    /// The learned measurement noise of `hybrid` and `imm` (`[tracker.hybrid]` keys).
+    fn noise_params(&self) -> Result<NoiseParams, ConfigError> {
+        let h = &self.hybrid;
         let [lo, hi] = h.noise_scale_limits;
         let key = "tracker.hybrid.noise_scale_limits";
-        p.noise.min_scale = check(key, lo, 0.0, true, 1.0)?;
-        p.noise.max_scale = check(key, hi, 1.0, false, 1.0e4)?;
-        Ok(p)
+        Ok(NoiseParams {
+            enabled: h.learn_noise,
+            min_scale: check(key, lo, 0.0, true, 1.0)?,
+            max_scale: check(key, hi, 1.0, false, 1.0e4)?,
+            ..NoiseParams::default()
+        })
     }
 
     /// Checks every tuning value (the daemon then builds trackers without failing).

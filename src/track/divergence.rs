@@ -191,45 +191,26 @@ fn measured(r_ii: f64) -> bool {
     r_ii < 0.5 * UNMEASURED_VARIANCE
 }
 
-/// εᵀε, Tr(S) and Tr(R) over the measured horizontal components (the first two) of the
-/// 3-vector block starting at `start` of an M-vector innovation.
-fn block_stat<const M: usize>(
-    inn: &Innovation<M>,
-    r: &SMatrix<f64, M, M>,
-    start: usize,
-) -> BlockStat {
-    let mut stat = BlockStat::default();
-    for m in start..start + 2 {
-        let (Some(&e), Some(&s_mm), Some(&r_mm)) =
-            (inn.residual.get(m), inn.s.get((m, m)), r.get((m, m)))
-        else {
-            continue;
-        };
-        if measured(r_mm) {
-            stat.e2 += e * e;
-            stat.tr_s += s_mm;
-            stat.tr_r += r_mm;
-        }
-    }
-    stat
-}
-
 /// Paper 000's criterion (eq. 24) and Adapt (eq. 29) for one 3-vector block starting at
-/// `start` of an M-vector innovation; `h_block_offset` is the state index of the block.
-/// Returns `None` when the block does not diverge, else `Some(adapt)` (possibly ≤ 1, which
-/// means "no inflation").
-#[allow(clippy::too_many_arguments)]
-fn block_adapt<const N: usize, const M: usize>(
+/// `start` of an M-vector innovation; `state_offset` is the state index of the block. In the
+/// same pass, εᵀε, Tr(S) and Tr(R) over the block's measured horizontal components (its
+/// first two), which [`super::noise`] learns from. The criterion's part is `None` when the
+/// block does not diverge, else `Some(adapt)` (possibly ≤ 1, which means "no inflation").
+fn block_check<const N: usize, const M: usize>(
     inn: &Innovation<M>,
     r: &SMatrix<f64, M, M>,
     pred: &Prediction<N>,
     start: usize,
     state_offset: usize,
     r_factor: f64,
-) -> Option<f64> {
+) -> (BlockStat, Option<f64>) {
     let (mut e2, mut tr_s, mut tr_r, mut tr_hqh, mut tr_hfpfh) = (0.0, 0.0, 0.0, 0.0, 0.0);
+    let mut horizontal = BlockStat::default();
     let mut any = false;
     for i in 0..3 {
+        if i == 2 {
+            horizontal = BlockStat { e2, tr_s, tr_r };
+        }
         let (m, s) = (start + i, state_offset + i);
         let (Some(&e), Some(&s_mm), Some(&r_mm)) =
             (inn.residual.get(m), inn.s.get((m, m)), r.get((m, m)))
@@ -248,14 +229,15 @@ fn block_adapt<const N: usize, const M: usize>(
         tr_hfpfh += pred.fpf.get((s, s)).copied().unwrap_or(0.0);
     }
     if !any || e2 <= r_factor * tr_s {
-        return None;
+        return (horizontal, None);
     }
     let numerator = e2 - tr_hqh - tr_r;
-    Some(if tr_hfpfh > 0.0 {
+    let adapt = if tr_hfpfh > 0.0 {
         numerator / tr_hfpfh
     } else {
         1.0
-    })
+    };
+    (horizontal, Some(adapt))
 }
 
 /// One Kalman update from `pred` guarded by paper 000's criterion and suppressor.
@@ -329,10 +311,11 @@ fn guarded_update_m<const N: usize, const M: usize>(
     let mut adapt = 1.0_f64;
     let mut stats = [BlockStat::default(); 2];
     for (b, &state_offset) in blocks.iter().enumerate() {
+        let (stat, criterion) = block_check(&inn, r, pred, 3 * b, state_offset, params.r);
         if let Some(slot) = stats.get_mut(state_offset / 3) {
-            *slot = block_stat(&inn, r, 3 * b);
+            *slot = stat;
         }
-        if let Some(a) = block_adapt(&inn, r, pred, 3 * b, state_offset, params.r) {
+        if let Some(a) = criterion {
             diverged = true;
             if a.is_finite() {
                 adapt = adapt.max(a);

@@ -214,8 +214,6 @@ pub struct HybridTracker {
     /// The aircraft's learned measurement noise. Kept when a gap restarts the track: it
     /// is the transponder's and the receiver's, not the track's.
     noise: NoiseLearner,
-    /// The aircraft declares its position accuracy ([`Tracker::set_accuracy_declared`]).
-    accuracy_declared: bool,
 }
 
 impl Default for HybridTracker {
@@ -246,7 +244,6 @@ impl HybridTracker {
             stats: HybridStats::default(),
             nis: NisWindow::default(),
             noise: NoiseLearner::default(),
-            accuracy_declared: false,
         }
     }
 
@@ -558,14 +555,13 @@ impl HybridTracker {
 impl Tracker for HybridTracker {
     /// A new track; the learned measurement noise is kept (it is the aircraft's).
     fn reset(&mut self) {
-        let (noise, declared) = (self.noise, self.accuracy_declared);
+        let noise = self.noise;
         *self = Self::new(self.params);
         self.noise = noise;
-        self.accuracy_declared = declared;
     }
 
     fn set_accuracy_declared(&mut self, declared: bool) {
-        self.accuracy_declared = declared;
+        self.noise.accuracy_declared = declared;
     }
 
     fn name(&self) -> &'static str {
@@ -607,7 +603,7 @@ impl Tracker for HybridTracker {
                 estimate_of(t_s, &x, &p, &info)
             }
         };
-        Some(self.noise.with_position_bias(est, self.accuracy_declared))
+        Some(self.noise.with_position_bias(est))
     }
 
     /// Extrapolates by the current label's model (paper 002 §1.3), its Q added; CT at the
@@ -631,7 +627,7 @@ impl Tracker for HybridTracker {
                 estimate_of(t_s, &x, &p, &info)
             }
         };
-        Some(self.noise.with_position_bias(est, self.accuracy_declared))
+        Some(self.noise.with_position_bias(est))
     }
 }
 

@@ -251,7 +251,6 @@ pub struct Imm {
     models: [Model; N_MODES],
     states: Option<Box<ModeStates>>,
     mu: [f64; N_MODES],
-    diverged: [bool; N_MODES],
     /// Consecutive divergence events of each mode's filter (paper 000 confirmation).
     divergence_runs: [u32; N_MODES],
     /// Σⱼ μⱼ (Pⱼ(k|k−1) − Pⱼ(k|k)) over the velocity block at the last step.
@@ -271,7 +270,6 @@ impl Imm {
             models: params.models.models(),
             states: None,
             mu: [0.0; N_MODES],
-            diverged: [false; N_MODES],
             divergence_runs: [0; N_MODES],
             velocity_correction_cov: Matrix3::zeros(),
             divergence_events: [0; N_MODES],
@@ -317,7 +315,6 @@ impl Imm {
         states.p = [kalman::symmetrise(p); N_MODES];
         let initial = self.params.initial_probabilities;
         self.mu = self.normalised(mu.unwrap_or(&initial));
-        self.diverged = [false; N_MODES];
         self.divergence_runs = [0; N_MODES];
     }
 
@@ -380,11 +377,6 @@ impl Imm {
             }
         }
         best
-    }
-
-    /// Whether the last step of `mode`'s filter met paper 000's criterion.
-    pub fn diverged(&self, mode: ImmMode) -> bool {
-        self.diverged[mode.index()]
     }
 
     /// The CV model's nominal innovation blocks (position, velocity) at the last step;
@@ -486,7 +478,6 @@ impl Imm {
         let mut x_new = states.x;
         let mut p_new = states.p;
         let mut log_post = [f64::NEG_INFINITY; N_MODES];
-        let mut diverged = [false; N_MODES];
         let mut runs = [0; N_MODES];
         let mut corrections = [Matrix3::zeros(); N_MODES];
         let mut nis = [f64::NAN; N_MODES];
@@ -516,7 +507,6 @@ impl Imm {
                     any_ok = true;
                     x_new[j] = g.x;
                     p_new[j] = g.p;
-                    diverged[j] = g.diverged;
                     runs[j] = g.run;
                     nis[j] = g.nis;
                     if j == ImmMode::Cv.index() {
@@ -555,15 +545,15 @@ impl Imm {
         states.x = x_new;
         states.p = p_new;
         self.mu = self.normalised(&mu);
-        self.diverged = diverged;
         self.divergence_runs = runs;
         self.nis = nis;
         self.velocity_correction_cov = corrections
             .iter()
             .zip(self.mu)
             .fold(Matrix3::zeros(), |acc, (c, mu)| acc + c * mu);
-        for (events, d) in self.divergence_events.iter_mut().zip(diverged) {
-            *events = events.saturating_add(u64::from(d));
+        // A step that met the criterion is the one whose run is not 0.
+        for (events, run) in self.divergence_events.iter_mut().zip(runs) {
+            *events = events.saturating_add(u64::from(run > 0));
         }
         Ok(())
     }
@@ -885,8 +875,6 @@ pub struct ImmTracker {
     nis: super::nis::NisWindow,
     /// The aircraft's learned measurement noise, kept across restarts.
     noise: NoiseLearner,
-    /// The aircraft declares its position accuracy ([`Tracker::set_accuracy_declared`]).
-    accuracy_declared: bool,
 }
 
 impl Default for ImmTracker {
@@ -904,7 +892,6 @@ impl ImmTracker {
             init: Initiator::new(params.init, &params.imm.models.cv),
             nis: super::nis::NisWindow::default(),
             noise: NoiseLearner::default(),
-            accuracy_declared: false,
         }
     }
 
@@ -970,14 +957,13 @@ pub(crate) fn labels_of_mode(mode: ImmMode, x: &State9, axes: &AxisThresholds) -
 impl Tracker for ImmTracker {
     /// A new track; the learned measurement noise is kept (it is the aircraft's).
     fn reset(&mut self) {
-        let (noise, declared) = (self.noise, self.accuracy_declared);
+        let noise = self.noise;
         *self = Self::new(self.params);
         self.noise = noise;
-        self.accuracy_declared = declared;
     }
 
     fn set_accuracy_declared(&mut self, declared: bool) {
-        self.accuracy_declared = declared;
+        self.noise.accuracy_declared = declared;
     }
 
     fn name(&self) -> &'static str {
@@ -1022,10 +1008,10 @@ impl Tracker for ImmTracker {
     fn estimate(&self) -> Option<Estimate> {
         let t_s = self.init.track_t_s()?;
         let (x, p) = self.imm.combined();
-        Some(self.noise.with_position_bias(
-            estimate_of(t_s, &x, &p, &self.info()),
-            self.accuracy_declared,
-        ))
+        Some(
+            self.noise
+                .with_position_bias(estimate_of(t_s, &x, &p, &self.info())),
+        )
     }
 
     /// Extrapolates the combined estimate by the most probable mode's model (paper 002
@@ -1040,10 +1026,10 @@ impl Tracker for ImmTracker {
         self.imm
             .model(self.imm.most_probable())
             .predict(&mut x, &mut p, dt_s);
-        Some(self.noise.with_position_bias(
-            estimate_of(t_s, &x, &p, &self.info()),
-            self.accuracy_declared,
-        ))
+        Some(
+            self.noise
+                .with_position_bias(estimate_of(t_s, &x, &p, &self.info())),
+        )
     }
 }
 

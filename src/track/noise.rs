@@ -204,11 +204,6 @@ impl NoiseScale {
             cov: d * o.cov * d,
         }
     }
-
-    /// Forgets everything learned: back to the declared R.
-    pub fn clear(&mut self) {
-        *self = Self::default();
-    }
 }
 
 /// The learned scales of an aircraft's position and velocity reports.
@@ -220,6 +215,9 @@ pub struct NoiseLearner {
     pub velocity: NoiseScale,
     /// The last position report's declared horizontal variance per axis, m² (0 before one).
     declared_pos_var_m2: f64,
+    /// The aircraft declares its position accuracy (NACp): only then is the declared
+    /// variance a bound on the total error ([`NoiseLearner::position_bias_var`]).
+    pub accuracy_declared: bool,
 }
 
 impl NoiseLearner {
@@ -247,8 +245,8 @@ impl NoiseLearner {
 
     /// `est` with the correlated position error the filter does not carry
     /// ([`NoiseLearner::position_bias_var`]) added to its horizontal position covariance.
-    pub fn with_position_bias(&self, mut est: Estimate, accuracy_declared: bool) -> Estimate {
-        let b = self.position_bias_var(accuracy_declared);
+    pub fn with_position_bias(&self, mut est: Estimate) -> Estimate {
+        let b = self.position_bias_var();
         if b > 0.0 {
             est.pos_cov_m2[(0, 0)] += b;
             est.pos_cov_m2[(1, 1)] += b;
@@ -258,8 +256,8 @@ impl NoiseLearner {
 
     /// The correlated position error's variance per horizontal axis, m² (module doc): the
     /// declared variance the white noise leaves unexplained; 0 when nothing is declared.
-    pub fn position_bias_var(&self, accuracy_declared: bool) -> f64 {
-        if !accuracy_declared {
+    pub fn position_bias_var(&self) -> f64 {
+        if !self.accuracy_declared {
             return 0.0;
         }
         // Only what λ misses by more than twice its standard error: a white noise as
@@ -369,16 +367,15 @@ mod tests {
             cov: Matrix3::from_diagonal(&Vector3::new(16.0, 16.0, 9.0)),
         };
         learner.note_position(&declared);
-        assert_eq!(learner.position_bias_var(true), 0.0, "λ = 1: all white");
+        learner.accuracy_declared = true;
+        assert_eq!(learner.position_bias_var(), 0.0, "λ = 1: all white");
         learner.position.lambda = 0.25;
-        assert_eq!(learner.position_bias_var(true), 12.0);
-        assert_eq!(learner.position_bias_var(false), 0.0, "nothing declared");
+        assert_eq!(learner.position_bias_var(), 12.0);
+        learner.accuracy_declared = false;
+        assert_eq!(learner.position_bias_var(), 0.0, "nothing declared");
+        learner.accuracy_declared = true;
         learner.position.lambda = 4.0;
-        assert_eq!(
-            learner.position_bias_var(true),
-            0.0,
-            "noisier than declared"
-        );
+        assert_eq!(learner.position_bias_var(), 0.0, "noisier than declared");
     }
 
     #[test]

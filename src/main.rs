@@ -11,10 +11,11 @@ use clap::{Parser, Subcommand};
 use std::path::PathBuf;
 use tokio_util::sync::CancellationToken;
 
-/// mimalloc: the router allocates each aircraft's batch on one core and the aircraft task
-/// frees it on the other; glibc's arena lock serialised the two (Cargo.toml).
+/// jemalloc: the router allocates each aircraft's batch on one core and the aircraft task
+/// frees it on the other; glibc's arena lock serialised the two, and mimalloc held more
+/// memory per aircraft (Cargo.toml).
 #[global_allocator]
-static GLOBAL: mimalloc::MiMalloc = mimalloc::MiMalloc;
+static GLOBAL: tikv_jemallocator::Jemalloc = tikv_jemallocator::Jemalloc;
 
 #[derive(Parser)]
 #[command(

@@ -152,7 +152,8 @@ pub struct Aircraft {
     /// the track ends, it does not depend on how the messages were batched (a snapshot made
     /// only at batch ends would: a track ending mid-batch would show an older estimate, or
     /// none, depending on where the batch boundaries fell).
-    ended: Option<Published>,
+    /// Boxed: it is rarely there, and inline it took 0.5 KB of every aircraft.
+    ended: Option<Box<Published>>,
 }
 
 impl Aircraft {
@@ -290,8 +291,8 @@ impl Aircraft {
             // A report without a position long after the track's last one ends the track
             // (every tracker's `max_gap_s` rule) rather than updating it: no estimate left.
             Ok(()) if m.position.is_none() && self.tracker.estimate().is_none() => {
-                if before.is_some() {
-                    self.ended = before;
+                if let Some(p) = before {
+                    self.ended = Some(Box::new(p));
                 }
                 false
             }
@@ -487,7 +488,7 @@ impl Aircraft {
     /// Ends the track, keeping its last snapshot ([`Aircraft::ended`]).
     fn reset_track(&mut self, counts: &mut Counts) {
         if let Some(p) = self.published(&[], counts) {
-            self.ended = Some(p);
+            self.ended = Some(Box::new(p));
         }
         self.clear_track();
     }
@@ -535,9 +536,11 @@ pub struct AircraftBatch {
 /// wall-clock silence, or the stream ended: the remaining batches are drained first and the
 /// last snapshot stays published) or on shutdown.
 ///
+/// The aircraft comes boxed: an `async fn` keeps its arguments and the locals they move
+/// into side by side in its future, which held a 1.2 KB `Aircraft` twice (3.0 KB futures).
 pub async fn run_task(
-    mut aircraft: Aircraft,
-    mut rx: mpsc::Receiver<AircraftBatch>,
+    mut aircraft: Box<Aircraft>,
+    mut rx: mpsc::Receiver<Box<AircraftBatch>>,
     slot: Slot,
     ctx: Arc<TaskContext>,
 ) {
@@ -616,7 +619,7 @@ fn publish(aircraft: &mut Aircraft, slot: &Slot, ctx: &TaskContext, counts: &mut
         }
         None => {
             if let Some(p) = aircraft.ended.take() {
-                slot.store(Arc::new(p));
+                slot.store(Arc::new(*p));
             }
         }
     }

@@ -2,11 +2,17 @@
 //! at most `history.max_points` of them, kept beside its published snapshot and served by
 //! `GET /api/v1/tracks/{icao}/history`.
 //!
-//! Memory per aircraft is the scarce resource at fleet scale, so a point is 16 bytes: time
-//! as milliseconds after the trail's base time (`u32`), latitude and longitude in 1e-7
-//! degrees (`i32`, about 1 cm), altitude as `f32` metres (about 1 mm at airliner heights).
-//! Points come at most every `window / max_points` seconds of feed time (decimation by time),
-//! and the ring's storage grows with the points up to `max_points`, never past it.
+//! Memory per aircraft is the scarce resource at fleet scale (the trail was the largest
+//! thing an aircraft held: 16 bytes a point, 8 KiB at 300 points with the ring's doubling),
+//! so the trail is delta-encoded. Values are integers: time in milliseconds, latitude and
+//! longitude in 1e-7 degrees (about 1 cm), altitude in centimetres. The oldest and the
+//! newest point are kept whole; every other point is stored as its difference from the
+//! point before, each of the four differences a zigzag LEB128 varint (the encoding of
+//! protocol buffers' `sint64`). One second apart, an airliner's point takes 8-10 bytes (2 for
+//! the time, 3 each for latitude and longitude, 1-2 for the altitude) instead of 16, and
+//! decoding is exact: what is served is what the integers say. Points come at most every
+//! `window / max_points` seconds of feed time (decimation by time); the byte ring grows by
+//! an eighth at a time, never to twice what it holds as a doubling ring would.
 
 use crate::config::HistoryConfig;
 use serde::Serialize;
@@ -21,14 +27,45 @@ pub struct TrailPoint {
     pub alt_m: f64,
 }
 
-/// One point as stored (16 bytes).
-#[derive(Clone, Copy, Debug, PartialEq)]
-struct Stored {
+/// One point in stored units.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+struct Fixed {
     /// Milliseconds after [`Trail::base_t_s`].
-    dt_ms: u32,
-    lat_e7: i32,
-    lon_e7: i32,
-    alt_m: f32,
+    t_ms: i64,
+    lat_e7: i64,
+    lon_e7: i64,
+    alt_cm: i64,
+}
+
+impl Fixed {
+    fn of(base_t_s: f64, t_s: f64, lat: f64, lon: f64, alt_m: f64) -> Self {
+        // Float-to-integer casts saturate; every value here is finite and far inside i64.
+        Self {
+            t_ms: ((t_s - base_t_s) * 1e3).round() as i64,
+            lat_e7: (lat * E7).round() as i64,
+            lon_e7: (lon * E7).round() as i64,
+            alt_cm: (alt_m * 100.0).round() as i64,
+        }
+    }
+
+    /// The difference from `prev`, field by field (wrapping: never reached, never a panic).
+    fn minus(&self, prev: &Self) -> [i64; 4] {
+        [
+            self.t_ms.wrapping_sub(prev.t_ms),
+            self.lat_e7.wrapping_sub(prev.lat_e7),
+            self.lon_e7.wrapping_sub(prev.lon_e7),
+            self.alt_cm.wrapping_sub(prev.alt_cm),
+        ]
+    }
+
+    fn plus(&self, d: &[i64; 4]) -> Self {
+        Self {
+            t_ms: self.t_ms.wrapping_add(d[0]),
+            lat_e7: self.lat_e7.wrapping_add(d[1]),
+            lon_e7: self.lon_e7.wrapping_add(d[2]),
+            alt_cm: self.alt_cm.wrapping_add(d[3]),
+        }
+    }
 }
 
 /// Resolution of the stored times, s.
@@ -37,16 +74,56 @@ const TIME_RESOLUTION_S: f64 = 1e-3;
 /// Degrees to the stored units (1e-7 degree).
 const E7: f64 = 1e7;
 
-/// Largest time offset stored before the base moves up, ms (a trail older than 46 days
-/// has long lost its old points; the margin below u32::MAX keeps the arithmetic exact).
-const MAX_DT_MS: f64 = 4.0e9;
+/// Appends `v` as a zigzag LEB128 varint: 7 bits a byte, low first, the high bit set on
+/// every byte but the last; zigzag maps 0, −1, 1, −2, … to 0, 1, 2, 3, … so small
+/// differences of either sign take one byte.
+fn put_varint(out: &mut VecDeque<u8>, v: i64) {
+    let mut u = ((v << 1) ^ (v >> 63)) as u64;
+    while u >= 0x80 {
+        out.push_back((u as u8 & 0x7f) | 0x80);
+        u >>= 7;
+    }
+    out.push_back(u as u8);
+}
 
-/// An aircraft's trail: a ring of at most `max_points` points, oldest first.
+/// Reads one varint of [`put_varint`] from `bytes`; `None` when they end first (a trail
+/// only ever reads what it wrote, so that is never reached).
+fn take_varint(bytes: &mut impl Iterator<Item = u8>) -> Option<i64> {
+    let mut u = 0u64;
+    for shift in (0..64).step_by(7) {
+        let b = bytes.next()?;
+        u |= u64::from(b & 0x7f) << shift;
+        if b & 0x80 == 0 {
+            return Some((u >> 1) as i64 ^ -((u & 1) as i64));
+        }
+    }
+    None
+}
+
+/// Reads one point's four differences.
+fn take_record(bytes: &mut impl Iterator<Item = u8>) -> Option<[i64; 4]> {
+    Some([
+        take_varint(bytes)?,
+        take_varint(bytes)?,
+        take_varint(bytes)?,
+        take_varint(bytes)?,
+    ])
+}
+
+/// An aircraft's trail: at most `max_points` points, oldest first (module doc).
 #[derive(Debug, Default)]
 pub struct Trail {
-    /// Feed time the stored offsets count from, s.
+    /// Feed time the stored times count from, s (the first point's since the trail was
+    /// last empty).
     base_t_s: f64,
-    points: VecDeque<Stored>,
+    /// Points held.
+    len: usize,
+    /// The oldest point (meaningful when `len > 0`).
+    first: Fixed,
+    /// The newest point (meaningful when `len > 0`).
+    last: Fixed,
+    /// The differences of points 2..=len, each from the one before.
+    deltas: VecDeque<u8>,
 }
 
 impl Trail {
@@ -64,45 +141,41 @@ impl Trail {
             // (Stored times are rounded to the millisecond: the same estimate published
             // again, at the same time, is no step back.)
             if t_s < last_t - TIME_RESOLUTION_S {
-                self.points.clear();
+                self.clear();
             } else if t_s - last_t < cfg.min_interval_s() {
                 return;
             }
         }
         let cutoff = t_s - cfg.window_s();
-        while self
-            .points
-            .front()
-            .is_some_and(|p| self.time_of(p) < cutoff)
-        {
-            self.points.pop_front();
+        while self.len > 0 && self.time_of(&self.first) < cutoff {
+            self.pop_front();
         }
-        while self.points.len() >= cfg.max_points {
-            self.points.pop_front();
+        while self.len >= cfg.max_points {
+            self.pop_front();
         }
-        if self.points.is_empty() {
+        if self.len == 0 {
             self.base_t_s = t_s;
-        } else if (t_s - self.base_t_s) * 1e3 > MAX_DT_MS {
-            // The points left are within the window (a day at most) of t_s.
-            self.rebase();
+            self.first = Fixed::of(t_s, t_s, lat, lon, alt_m);
+            self.last = self.first;
+            self.len = 1;
+            return;
         }
-        if self.points.len() == self.points.capacity() {
-            // Double as a Vec would, but never past max_points.
-            let want = (self.points.capacity() * 2).clamp(4, cfg.max_points);
-            self.points
-                .reserve_exact(want.saturating_sub(self.points.len()));
+        let point = Fixed::of(self.base_t_s, t_s, lat, lon, alt_m);
+        // A record takes at most 4 × 10 bytes: room for it, growing by an eighth.
+        if self.deltas.capacity() - self.deltas.len() < 40 {
+            let grow = (self.deltas.capacity() / 8).max(64);
+            self.deltas.reserve_exact(grow);
         }
-        self.points.push_back(Stored {
-            dt_ms: ((t_s - self.base_t_s) * 1e3).round().clamp(0.0, MAX_DT_MS) as u32,
-            lat_e7: (lat * E7).round() as i32,
-            lon_e7: (lon * E7).round() as i32,
-            alt_m: alt_m as f32,
-        });
+        for d in point.minus(&self.last) {
+            put_varint(&mut self.deltas, d);
+        }
+        self.last = point;
+        self.len += 1;
     }
 
     /// Feed time of the newest point, s.
     pub fn last_t_s(&self) -> Option<f64> {
-        self.points.back().map(|p| self.time_of(p))
+        (self.len > 0).then(|| self.time_of(&self.last))
     }
 
     /// True when a point at `t_s` would be stored (so the caller need not compute it).
@@ -115,43 +188,71 @@ impl Trail {
 
     /// The points, oldest first.
     pub fn points(&self) -> Vec<TrailPoint> {
-        self.points
-            .iter()
-            .map(|p| TrailPoint {
-                t: self.time_of(p),
-                lat: f64::from(p.lat_e7) / E7,
-                lon: f64::from(p.lon_e7) / E7,
-                alt_m: f64::from(p.alt_m),
-            })
-            .collect()
+        let mut out = Vec::with_capacity(self.len);
+        if self.len == 0 {
+            return out;
+        }
+        let mut p = self.first;
+        out.push(self.served(&p));
+        let mut bytes = self.deltas.iter().copied();
+        while let Some(d) = take_record(&mut bytes) {
+            p = p.plus(&d);
+            out.push(self.served(&p));
+        }
+        out
     }
 
     pub fn len(&self) -> usize {
-        self.points.len()
+        self.len
     }
 
     pub fn is_empty(&self) -> bool {
-        self.points.is_empty()
+        self.len == 0
     }
 
-    /// Bytes held by the ring's storage.
+    /// Bytes held by the trail's storage beyond its own struct.
     pub fn heap_bytes(&self) -> usize {
-        self.points.capacity() * std::mem::size_of::<Stored>()
+        self.deltas.capacity()
     }
 
-    fn time_of(&self, p: &Stored) -> f64 {
-        self.base_t_s + f64::from(p.dt_ms) / 1e3
+    fn time_of(&self, p: &Fixed) -> f64 {
+        self.base_t_s + p.t_ms as f64 / 1e3
     }
 
-    /// Moves the base time to the oldest point's.
-    fn rebase(&mut self) {
-        let Some(first) = self.points.front().map(|p| p.dt_ms) else {
-            return;
-        };
-        for p in self.points.iter_mut() {
-            p.dt_ms -= first;
+    fn served(&self, p: &Fixed) -> TrailPoint {
+        TrailPoint {
+            t: self.time_of(p),
+            lat: p.lat_e7 as f64 / E7,
+            lon: p.lon_e7 as f64 / E7,
+            alt_m: p.alt_cm as f64 / 100.0,
         }
-        self.base_t_s += f64::from(first) / 1e3;
+    }
+
+    /// Drops the oldest point: the next one is the oldest plus the first record.
+    fn pop_front(&mut self) {
+        if self.len <= 1 {
+            self.clear();
+            return;
+        }
+        let mut read = 0usize;
+        let record = {
+            let mut bytes = self.deltas.iter().copied().inspect(|_| read += 1);
+            take_record(&mut bytes)
+        };
+        match record {
+            Some(d) => {
+                self.first = self.first.plus(&d);
+                self.deltas.drain(..read);
+                self.len -= 1;
+            }
+            None => self.clear(),
+        }
+    }
+
+    /// Forgets every point (the storage is kept).
+    fn clear(&mut self) {
+        self.len = 0;
+        self.deltas.clear();
     }
 }
 
@@ -167,8 +268,98 @@ mod tests {
     }
 
     #[test]
-    fn a_point_is_sixteen_bytes() {
-        assert_eq!(std::mem::size_of::<Stored>(), 16);
+    fn an_airliner_point_takes_ten_bytes() {
+        // 250 m/s on a diagonal, climbing 10 m/s, a point a second for 10 minutes.
+        let c = cfg(10.0, 600);
+        let mut trail = Trail::default();
+        for i in 0..600 {
+            let s = f64::from(i);
+            trail.push(
+                &c,
+                1.7e9 + s,
+                51.0 + s * 1.6e-3,
+                -0.5 + s * 2.5e-3,
+                300.0 + 10.0 * s,
+            );
+        }
+        assert_eq!(trail.len(), 600);
+        let per_point = trail.heap_bytes() as f64 / 599.0;
+        // 2 (1000 ms) + 3 + 3 + 2 (1000 cm) bytes, and the growth's slack.
+        assert!(trail.deltas.len() == 599 * 10, "{}", trail.deltas.len());
+        assert!(per_point <= 12.5, "{per_point}");
+    }
+
+    /// The same rules over whole points in stored units: what the encoding must give back.
+    #[derive(Default)]
+    struct Reference {
+        base_t_s: f64,
+        points: VecDeque<Fixed>,
+    }
+
+    impl Reference {
+        fn push(&mut self, cfg: &HistoryConfig, t_s: f64, lat: f64, lon: f64, alt_m: f64) {
+            let time_of = |base: f64, p: &Fixed| base + p.t_ms as f64 / 1e3;
+            if let Some(last) = self.points.back().map(|p| time_of(self.base_t_s, p)) {
+                if t_s < last - TIME_RESOLUTION_S {
+                    self.points.clear();
+                } else if t_s - last < cfg.min_interval_s() {
+                    return;
+                }
+            }
+            let cutoff = t_s - cfg.window_s();
+            while self
+                .points
+                .front()
+                .is_some_and(|p| time_of(self.base_t_s, p) < cutoff)
+            {
+                self.points.pop_front();
+            }
+            while self.points.len() >= cfg.max_points {
+                self.points.pop_front();
+            }
+            if self.points.is_empty() {
+                self.base_t_s = t_s;
+            }
+            self.points
+                .push_back(Fixed::of(self.base_t_s, t_s, lat, lon, alt_m));
+        }
+    }
+
+    proptest::proptest! {
+        /// Whatever the steps (gaps, jumps across the globe, time going back, the window
+        /// and the count both dropping points), the trail serves exactly the points a
+        /// plain list of whole points would hold.
+        #[test]
+        fn the_encoding_loses_nothing(
+            steps in proptest::collection::vec(
+                (-5.0..400.0f64, -90.0..90.0f64, -180.0..180.0f64, -500.0..20_000.0f64, 0..8u8),
+                1..400,
+            ),
+            window_minutes in 0.05..20.0f64,
+            max_points in 1..80usize,
+        ) {
+            let c = cfg(window_minutes, max_points);
+            let (mut trail, mut reference) = (Trail::default(), Reference::default());
+            let (mut t, mut lat, mut lon, mut alt) = (1.7e9, 10.0, 20.0, 1000.0);
+            for (dt, la, lo, al, kind) in steps {
+                // Mostly small moves, sometimes a jump anywhere.
+                if kind == 0 {
+                    (lat, lon, alt) = (la, lo, al);
+                } else {
+                    lat = (lat + la * 1e-4).clamp(-90.0, 90.0);
+                    lon = (lon + lo * 1e-4).clamp(-180.0, 180.0);
+                    alt += al * 1e-3;
+                }
+                t += dt;
+                trail.push(&c, t, lat, lon, alt);
+                reference.push(&c, t, lat, lon, alt);
+                let want: Vec<TrailPoint> =
+                    reference.points.iter().map(|p| trail.served(p)).collect();
+                proptest::prop_assert_eq!(reference.base_t_s, trail.base_t_s);
+                proptest::prop_assert_eq!(trail.points(), want);
+                proptest::prop_assert_eq!(trail.len(), reference.points.len());
+            }
+        }
     }
 
     #[test]
@@ -239,7 +430,7 @@ mod tests {
     }
 
     #[test]
-    fn time_going_back_starts_afresh_and_a_long_life_rebases() {
+    fn time_going_back_starts_afresh_and_a_long_life_keeps_its_times() {
         let c = cfg(1440.0, 10);
         let mut trail = Trail::default();
         trail.push(&c, 1000.0, 1.0, 1.0, 1.0);
@@ -249,7 +440,7 @@ mod tests {
         assert_eq!(trail.points().len(), 2);
         trail.push(&c, 10.0, 2.0, 2.0, 2.0);
         assert_eq!(trail.points().len(), 1);
-        // 50 days of points 144 min apart: offsets would pass u32 milliseconds.
+        // 50 days of points 144 min apart: offsets past u32 milliseconds.
         let mut trail = Trail::default();
         for i in 0..500 {
             trail.push(&c, f64::from(i) * 8640.0, 1.0, 1.0, 1.0);

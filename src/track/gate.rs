@@ -52,6 +52,8 @@
 //! threshold (and significance), so a manoeuvre at the threshold does not flicker.
 //! Fixed-capacity ring buffer: no allocation.
 
+use std::sync::Arc;
+
 use super::{
     FlightMode, Lateral, Observed, SpeedTrend, TurnDirection, VerticalTrend, UNMEASURED_VARIANCE,
 };
@@ -122,6 +124,24 @@ pub struct GateParams {
 }
 
 impl GateParams {
+    /// The most reports a test reads (the largest of the windows, the onset test's
+    /// reference and its newest reports together), within 2..=[`GATE_CAPACITY`]: what the
+    /// gate's buffer holds.
+    pub fn longest_window(&self) -> usize {
+        [
+            self.window_reports,
+            self.turn_window_reports,
+            self.vertical_window_reports,
+            self.trend_window_reports,
+            self.onset_reference_reports
+                .saturating_add(self.onset_reports),
+        ]
+        .into_iter()
+        .max()
+        .unwrap_or(GATE_CAPACITY)
+        .clamp(2, GATE_CAPACITY)
+    }
+
     /// Paper 002's gate as printed (§2): N = 5, λv = 10 m/s, λa = 5 m/s², λφ = 1°, λβ = 5°,
     /// changes between the first and the last report of the window, no significance test,
     /// no hysteresis.
@@ -190,15 +210,16 @@ impl Default for GateParams {
     }
 }
 
-/// One velocity in the window, with what the tests need precomputed.
+/// One velocity in the window, with what the tests need precomputed (64 bytes: the gate is
+/// per aircraft, and memory at fleet scale is per aircraft; the wrapped heading is kept for
+/// the newest sample alone, [`Gate::newest_angle_rad`]).
 #[derive(Clone, Copy, Debug, PartialEq, Default)]
 struct Sample {
     t_s: f64,
     /// Ground speed, m/s.
     speed_mps: f64,
-    /// Heading as a math angle atan2(vn, ve), rad (counter-clockwise from east).
-    angle_rad: f64,
-    /// The same, unwrapped from the previous sample's (continuous through ±π), rad.
+    /// Heading as a math angle atan2(vn, ve) (counter-clockwise from east), unwrapped from
+    /// the previous sample's (continuous through ±π), rad.
     heading_rad: f64,
     /// Variance of the heading, rad²: the horizontal component variance over speed².
     heading_var: f64,
@@ -392,19 +413,23 @@ fn ls_slope(points: impl Iterator<Item = (f64, f64, f64)> + Clone) -> Option<(f6
 
 /// The gate: a window of the last velocities and the state of its hysteresis.
 ///
-/// The samples live in a sliding buffer of the capacity plus [`GATE_SLACK`]: written in
-/// order, and when the end is reached the newest capacity − 1 slide back to the front (one
-/// 2.5 KB copy every nine reports). The newest n are always one contiguous slice, so every
-/// test is a plain loop over a slice with no modulo; and the buffer is 3.2 KB where a ring
-/// written twice took 5.1 KB (the gate is per aircraft: memory at fleet scale).
+/// The samples live in a sliding buffer of the longest window the tests read
+/// ([`GateParams::longest_window`]) plus [`GATE_SLACK`]: written in order, and when the end
+/// is reached the newest capacity − 1 slide back to the front (one 1.5 KB copy every nine
+/// reports with the default windows). The newest n are always one contiguous slice, so
+/// every test is a plain loop over a slice with no modulo; and the buffer is 2 KB with
+/// the default windows (the gate is per aircraft: memory at fleet scale).
 #[derive(Clone, Debug, PartialEq)]
 pub struct Gate {
-    params: GateParams,
-    samples: [Sample; GATE_CAPACITY + GATE_SLACK],
+    params: Arc<GateParams>,
+    samples: Box<[Sample]>,
     /// One past the newest sample.
     end: usize,
-    /// Samples held (at most [`GATE_CAPACITY`]), the newest `len` before `end`.
+    /// Samples held (at most the longest window), the newest `len` before `end`.
     len: usize,
+    /// The newest sample's heading wrapped to (−π, π], rad: what the next one unwraps
+    /// from.
+    newest_angle_rad: f64,
     reading: GateReading,
     /// Feed time the current turn began (the last straight report before it), while a turn
     /// test holds.
@@ -415,10 +440,12 @@ impl Gate {
     /// An empty gate.
     pub fn new(params: GateParams) -> Self {
         Self {
-            params,
-            samples: [Sample::default(); GATE_CAPACITY + GATE_SLACK],
+            samples: vec![Sample::default(); params.longest_window() + GATE_SLACK]
+                .into_boxed_slice(),
+            params: super::shared::shared(params),
             end: 0,
             len: 0,
+            newest_angle_rad: 0.0,
             reading: GateReading::default(),
             turn_start_s: None,
         }
@@ -463,6 +490,11 @@ impl Gate {
     /// The last evaluation.
     pub fn reading(&self) -> &GateReading {
         &self.reading
+    }
+
+    /// Samples held at most: the longest window.
+    fn capacity(&self) -> usize {
+        self.samples.len().saturating_sub(GATE_SLACK).max(1)
     }
 
     /// Number of samples held.
@@ -527,12 +559,11 @@ impl Gate {
         // The heading unwrapped from the previous sample's: slopes and fits read differences,
         // which a common offset leaves alone.
         let heading_rad = self.newest().map_or(angle_rad, |prev| {
-            prev.heading_rad + wrap_pi(angle_rad - prev.angle_rad)
+            prev.heading_rad + wrap_pi(angle_rad - self.newest_angle_rad)
         });
         let sample = Sample {
             t_s,
             speed_mps,
-            angle_rad,
             heading_rad,
             heading_var: var_h / (speed_mps * speed_mps),
             vu_mps: vu,
@@ -542,7 +573,7 @@ impl Gate {
         };
         if self.end >= self.samples.len() {
             // Slide: the newest capacity − 1 to the front; the oldest held one drops.
-            let keep = self.len.min(GATE_CAPACITY - 1);
+            let keep = self.len.min(self.capacity() - 1);
             let from = self.end - keep;
             self.samples.copy_within(from..self.end, 0);
             self.end = keep;
@@ -551,7 +582,8 @@ impl Gate {
             *s = sample;
         }
         self.end += 1;
-        self.len = (self.len + 1).min(GATE_CAPACITY);
+        self.len = (self.len + 1).min(self.capacity());
+        self.newest_angle_rad = angle_rad;
         self.evaluate();
         &self.reading
     }
@@ -644,7 +676,7 @@ impl Gate {
     }
 
     fn evaluate(&mut self) {
-        let p = self.params;
+        let p = *self.params;
         let old = self.reading.flags;
         let mut r = GateReading::default();
 

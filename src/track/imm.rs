@@ -183,45 +183,83 @@ fn log_sum_exp(values: &[f64]) -> f64 {
     max + values.iter().map(|v| (v - max).exp()).sum::<f64>().ln()
 }
 
+/// Entries of a 9x9 symmetric matrix's upper triangle.
+const PACKED9: usize = 45;
+
+/// A symmetric 9x9 matrix by its upper triangle, column by column (rows 0..=c of column c):
+/// 360 bytes instead of 648.
+type Packed9 = [f64; PACKED9];
+
+/// Column `c`'s part of a [`Packed9`]: rows 0..=c, from offset c(c+1)/2.
+fn packed_col(c: usize) -> std::ops::Range<usize> {
+    let start = c * (c + 1) / 2;
+    start..start + c + 1
+}
+
+/// The upper triangle of `p`, column by column.
+fn pack(p: &Matrix9) -> Packed9 {
+    let mut out = [0.0; PACKED9];
+    for (c, col) in p.data.0.iter().enumerate() {
+        if let (Some(o), Some(v)) = (out.get_mut(packed_col(c)), col.get(..=c)) {
+            o.copy_from_slice(v);
+        }
+    }
+    out
+}
+
+/// The symmetric matrix whose upper triangle `packed` holds.
+fn unpack(packed: &Packed9) -> Matrix9 {
+    let mut cols = [[0.0f64; 9]; 9];
+    for (c, col) in cols.iter_mut().enumerate() {
+        if let (Some(o), Some(v)) = (col.get_mut(..=c), packed.get(packed_col(c))) {
+            o.copy_from_slice(v);
+        }
+    }
+    let mut m = Matrix9::from(cols);
+    m.fill_lower_triangle_with_upper_triangle();
+    m
+}
+
 /// Σᵢ wᵢ [Pᵢ + (x̂ᵢ − x̂)(x̂ᵢ − x̂)ᵀ] over the terms with wᵢ > 0: the mixed covariance
 /// P⁰ⱼ (Bar-Shalom et al. 2001, eq. 11.6.6-11) and the combined one (eq. 11.6.6-20).
 ///
-/// In place, column by column over fixed-size arrays (no temporary 9x9 matrices for the
-/// outer product and the scaled sum): entry by entry the same operations as
-/// `out += (Pᵢ + d dᵀ) wᵢ`. Every Pᵢ the estimator holds is exactly symmetric (each comes
-/// out of a symmetrisation: [`kalman::symmetrise`], a Kalman update,
-/// [`Prediction::covariance`]), and so is d dᵀ (dᵣ d꜀ = d꜀ dᵣ in floating point), so the
-/// sum is accumulated over the upper triangle alone and mirrored: the same result with 45
-/// entries instead of 81.
+/// In place over fixed-size arrays (no temporary 9x9 matrices for the outer product and
+/// the scaled sum): entry by entry the same operations as `out += (Pᵢ + d dᵀ) wᵢ`. Every Pᵢ
+/// the estimator holds is exactly symmetric (each comes out of a symmetrisation:
+/// [`kalman::symmetrise`], a Kalman update, [`Prediction::covariance`]), which is why it is
+/// stored as its upper triangle ([`Packed9`]), and so is d dᵀ (dᵣ d꜀ = d꜀ dᵣ in floating
+/// point): the sum is accumulated over the upper triangle alone and mirrored, the same
+/// result with 45 entries instead of 81.
 fn spread_sum(
     x: &[State9; N_MODES],
-    p: &[Matrix9; N_MODES],
+    p: &[Packed9; N_MODES],
     w: &[f64; N_MODES],
     mean: &State9,
 ) -> Matrix9 {
-    let mut out = [[0.0f64; 9]; 9];
+    let mut out = [0.0f64; PACKED9];
     for ((xi, pi), &wi) in x.iter().zip(p).zip(w) {
         if wi > 0.0 {
             let d: [f64; 9] = (xi - mean).into();
-            let pi: &[[f64; 9]; 9] = &pi.data.0;
-            // Upper triangle (rows 0..=c of column c) only.
-            for (c, ((oc, pc), dc)) in out.iter_mut().zip(pi).zip(d).enumerate() {
-                for ((o, pv), dr) in oc.iter_mut().zip(pc).zip(d).take(c + 1) {
+            for (c, dc) in d.iter().enumerate() {
+                let (Some(oc), Some(pc)) = (out.get_mut(packed_col(c)), pi.get(packed_col(c)))
+                else {
+                    continue;
+                };
+                for ((o, pv), dr) in oc.iter_mut().zip(pc).zip(&d) {
                     *o += (pv + dr * dc) * wi;
                 }
             }
         }
     }
-    let mut out = Matrix9::from(out);
-    out.fill_lower_triangle_with_upper_triangle();
-    out
+    unpack(&out)
 }
 
-/// Every mode's state and covariance: 4.3 KB, the bulk of an IMM.
+/// Every mode's state and covariance (the covariances packed): 2.6 KB, the bulk of an
+/// IMM.
 #[derive(Clone, Debug, PartialEq)]
 struct ModeStates {
     x: [State9; N_MODES],
-    p: [Matrix9; N_MODES],
+    p: [Packed9; N_MODES],
 }
 
 impl ModeStates {
@@ -229,7 +267,7 @@ impl ModeStates {
     fn initial() -> Self {
         Self {
             x: [State9::zeros(); N_MODES],
-            p: [Matrix9::identity(); N_MODES],
+            p: [pack(&Matrix9::identity()); N_MODES],
         }
     }
 }
@@ -243,11 +281,12 @@ static INITIAL_STATES: std::sync::LazyLock<ModeStates> =
 /// The per-mode states are held on the heap only from the first [`Imm::reset`] or
 /// [`Imm::step`] until [`Imm::release`]: the hybrid tracker releases them while its CV
 /// filter runs (two thirds of a fleet's aircraft at any time), where they are never read
-/// (it enters the IMM again through `reset`, which overwrites them all). 4.3 KB less per
+/// (it enters the IMM again through `reset`, which overwrites them all). 2.6 KB less per
 /// such aircraft; while none are held every reader sees the initial states, as before.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Imm {
-    params: ImmParams,
+    /// Shared by every estimator built with the same tuning ([`super::shared`]).
+    params: std::sync::Arc<ImmParams>,
     models: [Model; N_MODES],
     states: Option<Box<ModeStates>>,
     mu: [f64; N_MODES],
@@ -266,7 +305,7 @@ impl Imm {
     /// An estimator with zero states; call [`Imm::reset`] before the first step.
     pub fn new(params: ImmParams) -> Self {
         let mut imm = Self {
-            params,
+            params: super::shared::shared(params),
             models: params.models.models(),
             states: None,
             mu: [0.0; N_MODES],
@@ -312,7 +351,7 @@ impl Imm {
     pub fn reset(&mut self, x: &State9, p: &Matrix9, mu: Option<&[f64; N_MODES]>) {
         let states = self.states_mut();
         states.x = [*x; N_MODES];
-        states.p = [kalman::symmetrise(p); N_MODES];
+        states.p = [pack(&kalman::symmetrise(p)); N_MODES];
         let initial = self.params.initial_probabilities;
         self.mu = self.normalised(mu.unwrap_or(&initial));
         self.divergence_runs = [0; N_MODES];
@@ -409,9 +448,10 @@ impl Imm {
     }
 
     /// The state and covariance of one mode's filter.
-    pub fn mode_state(&self, mode: ImmMode) -> (&State9, &Matrix9) {
+    pub fn mode_state(&self, mode: ImmMode) -> (State9, Matrix9) {
         let states = self.states();
-        (&states.x[mode.index()], &states.p[mode.index()])
+        let i = mode.index();
+        (states.x[i], unpack(&states.p[i]))
     }
 
     /// The Markov transition matrix over `dt_s` (module doc), over the enabled modes.
@@ -506,7 +546,7 @@ impl Imm {
                 Ok(g) => {
                     any_ok = true;
                     x_new[j] = g.x;
-                    p_new[j] = g.p;
+                    p_new[j] = pack(&g.p);
                     runs[j] = g.run;
                     nis[j] = g.nis;
                     if j == ImmMode::Cv.index() {
@@ -520,7 +560,7 @@ impl Imm {
                 }
                 Err(e) => {
                     x_new[j] = pred.x;
-                    p_new[j] = pred.covariance(1.0);
+                    p_new[j] = pack(&pred.covariance(1.0));
                     if first_error.is_none() {
                         first_error = Some(e);
                     }
@@ -1062,7 +1102,9 @@ mod tests {
                     full += (pi + d * d.transpose()) * wi;
                 }
             }
-            assert_eq!(spread_sum(&x, &p, &w, &mean), full);
+            assert_eq!(spread_sum(&x, &p.map(|pi| pack(&pi)), &w, &mean), full);
+            // Packing is lossless for a symmetric matrix.
+            assert!(p.iter().all(|pi| unpack(&pack(pi)) == *pi));
         }
     }
 

@@ -18,6 +18,7 @@ pub mod kalman;
 pub mod models;
 pub mod nis;
 pub mod noise;
+pub mod shared;
 pub mod singer;
 pub mod vsimm;
 

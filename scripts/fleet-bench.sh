@@ -77,12 +77,13 @@ PY
 }
 
 # RSS while tracking at 20x real time (queues near empty): what holding N aircraft costs.
-steady_rss() { # FILE TRACKER -> VmRSS kB after 15 s
+steady_rss() { # FILE TRACKER SECONDS -> VmRSS kB after SECONDS (15: 5 min of feed, trails
+  # half full; 28: 9.3 min, trails nearly full)
   local api=$((36000 + RANDOM % 4000))
   RUST_LOG=warn "$bin" replay "$1" --tracker "$2" --speed 20 --serve "127.0.0.1:$api" \
     > /dev/null 2>&1 &
   local pid=$!
-  sleep 15
+  sleep "$3"
   awk '/VmRSS/{print $2}' "/proc/$pid/status"
   kill "$pid"; wait "$pid" 2>/dev/null || true
 }
@@ -96,8 +97,11 @@ for tracker in hybrid kalman-cv; do
     read -r f wall cpu rss <<< "$(replay "$work/fleet.beast" "$tracker")"
     python3 -c "f,w,c,r,b=$f,$wall,$cpu,$rss,$base; print(f'replay 2 cores: {f/c/1e6:.2f} M frames/CPU-s, {f/w/1e6:.2f} M frames/wall-s, {c:.2f} CPU-s, peak RSS {r/1024:.1f} MiB, {(r-b)/1000:.1f} KiB/aircraft (1-aircraft run {b/1024:.1f} MiB)')"
   done
-  r1=$(steady_rss "$work/one.beast" "$tracker"); r1000=$(steady_rss "$work/fleet.beast" "$tracker")
-  python3 -c "a,b=$r1,$r1000; print(f'steady 20x real time: RSS {b/1024:.1f} MiB with 1000 aircraft, {a/1024:.1f} MiB with 1: {(b-a)/999:.1f} KiB per aircraft')"
+  for secs in 15 28; do
+    r1=$(steady_rss "$work/one.beast" "$tracker" "$secs")
+    r1000=$(steady_rss "$work/fleet.beast" "$tracker" "$secs")
+    python3 -c "a,b=$r1,$r1000; print(f'steady 20x real time, {$secs*20/60:.1f} min of feed: RSS {b/1024:.1f} MiB with 1000 aircraft, {a/1024:.1f} MiB with 1: {(b-a)/999:.1f} KiB per aircraft')"
+  done
   for i in $(seq "$runs"); do
     read -r f wall cpu rss <<< "$(replay "$work/fleet.beast" "$tracker" taskset -c 0)"
     python3 -c "f,w,c=$f,$wall,$cpu; print(f'replay 1 core:  {f/c/1e6:.2f} M frames/CPU-s, {f/w/1e6:.2f} M frames/wall-s')"

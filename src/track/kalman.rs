@@ -188,25 +188,28 @@ pub fn sparse_fpf<const N: usize>(
 /// factorisation (it fails on the same matrices up to rounding), without its N square
 /// roots. A NaN pivot fails too.
 pub fn is_positive_definite<const N: usize>(a: &SMatrix<f64, N, N>) -> bool {
-    // Row-wise: l[(j, k)] for k < j holds Lⱼₖ, d[j] the pivots.
+    // l[(j, k)] for k < j holds Lⱼₖ; inv_d the pivots' reciprocals (one division per pivot,
+    // not one per entry); w the unscaled entries Lⱼₘ dₘ of the row being factored, so each
+    // term of the inner sum is one product.
     let mut l = SMatrix::<f64, N, N>::zeros();
-    let mut d = [0.0; N];
+    let mut inv_d = [0.0; N];
     for j in 0..N {
-        // wₖ = Lⱼₖ dₖ, computed as the unscaled entries of row j.
+        let mut w = [0.0; N];
         let mut djj = a[(j, j)];
         for k in 0..j {
             let mut v = a[(j, k)];
             for m in 0..k {
-                v -= l[(j, m)] * l[(k, m)] * d[m];
+                v -= w[m] * l[(k, m)];
             }
-            let ljk = v / d[k];
+            w[k] = v;
+            let ljk = v * inv_d[k];
             l[(j, k)] = ljk;
             djj -= ljk * v;
         }
         if djj.is_nan() || djj <= 0.0 || djj.is_infinite() {
             return false;
         }
-        d[j] = djj;
+        inv_d[j] = 1.0 / djj;
     }
     true
 }

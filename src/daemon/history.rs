@@ -138,7 +138,7 @@ impl Chunks {
 
     /// Bytes allocated: the chunks and the list of them.
     fn heap_bytes(&self) -> usize {
-        self.chunks.len() * CHUNK + self.chunks.capacity() * std::mem::size_of::<usize>()
+        self.chunks.len() * CHUNK + self.chunks.capacity() * std::mem::size_of::<Box<[u8; CHUNK]>>()
     }
 }
 
@@ -312,7 +312,7 @@ impl Trail {
         }
     }
 
-    /// Forgets every point (the storage is kept).
+    /// Forgets every point (and frees their chunks).
     fn clear(&mut self) {
         self.len = 0;
         self.deltas.clear();

@@ -295,12 +295,11 @@ async fn deliver(
                 permits,
                 done,
             })),
-            None => Err(mpsc::error::TrySendError::Full(Box::new(AircraftBatch {
-                msgs,
-                arrived,
-                permits: 0,
-                done,
-            }))),
+            // No room in the frame budget: shed without building the batch.
+            None => {
+                drops.dropped(n as u64, stats);
+                return Delivery::Sent;
+            }
         },
     };
     match sent {

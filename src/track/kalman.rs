@@ -193,8 +193,9 @@ pub fn is_positive_definite<const N: usize>(a: &SMatrix<f64, N, N>) -> bool {
     // term of the inner sum is one product.
     let mut l = SMatrix::<f64, N, N>::zeros();
     let mut inv_d = [0.0; N];
+    // Row j writes w[k] before it reads it (m < k), so one buffer serves every row.
+    let mut w = [0.0; N];
     for j in 0..N {
-        let mut w = [0.0; N];
         let mut djj = a[(j, j)];
         for k in 0..j {
             let mut v = a[(j, k)];

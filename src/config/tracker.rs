@@ -57,6 +57,8 @@ pub struct GateConfig {
     pub onset_reference_reports: Option<usize>,
     pub onset_sigmas: Option<f64>,
     pub along_track_accel_mps2: Option<f64>,
+    pub accel_onset_reports: Option<usize>,
+    pub accel_onset_reference_reports: Option<usize>,
     pub trend_window_reports: Option<usize>,
     pub vertical_rate_mps: Option<f64>,
     pub vertical_window_reports: Option<usize>,
@@ -65,6 +67,7 @@ pub struct GateConfig {
     pub release_ratio: Option<f64>,
     pub min_speed_mps: Option<f64>,
     pub max_velocity_sigma_mps: Option<f64>,
+    pub vrate_noise_window_reports: Option<f64>,
 }
 
 /// One value per IMM mode, by name.
@@ -268,6 +271,21 @@ impl GateConfig {
                 format!("onset_reports + onset_reference_reports must be at most {cap}"),
             ));
         }
+        if let Some(v) = self.accel_onset_reports {
+            p.accel_onset_reports = count(&k("accel_onset_reports"), v, 0, cap - 3)?;
+        }
+        if let Some(v) = self.accel_onset_reference_reports {
+            p.accel_onset_reference_reports =
+                count(&k("accel_onset_reference_reports"), v, 3, cap)?;
+        }
+        if p.accel_onset_reports + p.accel_onset_reference_reports > cap {
+            return Err(bad(
+                &k("accel_onset_reference_reports"),
+                format!(
+                    "accel_onset_reports + accel_onset_reference_reports must be at most {cap}"
+                ),
+            ));
+        }
         if let Some(v) = self.onset_sigmas {
             p.onset_sigmas = check(&k("onset_sigmas"), v, 0.0, false, 100.0)?;
         }
@@ -292,6 +310,10 @@ impl GateConfig {
         if let Some(v) = self.max_velocity_sigma_mps {
             p.max_velocity_sigma_mps =
                 check(&k("max_velocity_sigma_mps"), v, 0.0, true, f64::INFINITY)?;
+        }
+        if let Some(v) = self.vrate_noise_window_reports {
+            p.vrate_noise_window_reports =
+                check(&k("vrate_noise_window_reports"), v, 0.0, false, 1.0e6)?;
         }
         Ok(p)
     }

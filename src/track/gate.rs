@@ -455,10 +455,12 @@ fn ls_slope(points: impl Iterator<Item = (f64, f64, f64)> + Clone) -> Option<(f6
 /// (b, its σ, t_ref), over the splits whose reference is steady (its own slope under
 /// `lambda`: the end of a change must not read as the onset of another).
 ///
-/// Sums over all the samples, less those of the newest m as m grows, give every split's
-/// reference; times are taken from the newest report and values from the oldest, so the
-/// one-pass formulas Σxy − Σx Σy / n work on numbers of a few seconds and units and do not
-/// cancel.
+/// One pass: sums over all the samples, less those of the newest m as m grows, give every
+/// split's reference, and the newest m's own sums (Σt, Σt², Σy, Σty, added one report per
+/// m) give the hinge's, Σh = Σt − m t_ref, Σh² = Σt² − 2 t_ref Σt + m t_ref², Σhy = Σty −
+/// t_ref Σy: O(n) for every split together (the test runs on every report of every
+/// aircraft). Times are taken from the newest report and values from the oldest, so the
+/// formulas Σxy − Σx Σy / n work on numbers of a few seconds and units and do not cancel.
 fn hinge_onset(
     all: &[Sample],
     max_newest: usize,
@@ -470,53 +472,61 @@ fn hinge_onset(
     // (Σt, Σt², Σy, Σty) over the reference, and Σy, Σvar over every sample.
     let (mut st, mut stt, mut sy, mut sty, mut sum_var) = (0.0, 0.0, 0.0, 0.0, 0.0);
     for s in all {
-        let (t, y) = ty(s);
+        let (v, var) = value(s);
+        let (t, y) = (s.t_s - t0, v - y0);
         st += t;
         stt += t * t;
         sy += y;
         sty += t * y;
-        sum_var += value(s).1;
+        sum_var += var;
     }
-    let (n, sum_y) = (all.len(), sy);
-    let nf = n as f64;
+    let n = all.len();
+    let (nf, sum_y) = (n as f64, sy);
+    // The newest m's (Σt, Σt², Σy, Σty).
+    let (mut nt, mut ntt, mut ny, mut nty) = (0.0, 0.0, 0.0, 0.0);
+    // The strongest split so far as (n·Σ(h − h̄)(y − ȳ), n·Σ(h − h̄)², t_ref): its slope is
+    // the first over the second, and its significance² the first² / (second · Σvar), so
+    // splits compare by cross-multiplication, with no division in the loop (divisions
+    // were most of the test's cost).
     let mut best: Option<(f64, f64, f64)> = None;
     for m in 1..=max_newest {
         let Some(split) = n.checked_sub(m).filter(|&s| s >= 3) else {
             break;
         };
-        // The newest m leave the reference: its own slope.
+        // The newest m leave the reference: its own slope, k Σ(t − t̄)(y − ȳ) over
+        // k Σ(t − t̄)², must be under λ.
         let (t, y) = ty(all.get(split)?);
         st -= t;
         stt -= t * t;
         sy -= y;
         sty -= t * y;
+        nt += t;
+        ntt += t * t;
+        ny += y;
+        nty += t * y;
         let k = split as f64;
-        let sxx = stt - st * st / k;
-        if sxx <= 0.0 || ((sty - st * sy / k) / sxx).abs() >= lambda {
+        let k_sxx = k * stt - st * st;
+        if k_sxx <= 0.0 || (k * sty - st * sy).abs() >= lambda * k_sxx {
             continue;
         }
         // The hinge h = max(0, t − t_ref): zero on the reference, so only the newest m
         // reports add to Σh, Σh², Σhy.
-        let t_ref = all.get(split - 1)?.t_s;
-        let (mut sh, mut shh, mut shy) = (0.0, 0.0, 0.0);
-        for s in all.get(split..)? {
-            let h = s.t_s - t_ref;
-            let y = value(s).0 - y0;
-            sh += h;
-            shh += h * h;
-            shy += h * y;
-        }
-        let hxx = shh - sh * sh / nf;
-        if hxx <= 0.0 {
+        let t_ref = all.get(split - 1)?.t_s - t0;
+        let mf = m as f64;
+        let sh = nt - mf * t_ref;
+        let shh = ntt - 2.0 * t_ref * nt + mf * t_ref * t_ref;
+        let shy = nty - t_ref * ny;
+        let n_hxx = nf * shh - sh * sh;
+        if n_hxx <= 0.0 {
             continue;
         }
-        let b = (shy - sh * sum_y / nf) / hxx;
-        let sigma = (sum_var / nf / hxx).sqrt();
-        if best.is_none_or(|(b0, s0, _)| b.abs() * s0 > b0.abs() * sigma) {
-            best = Some((b, sigma, t_ref));
+        let n_hy = nf * shy - sh * sum_y;
+        if best.is_none_or(|(hy0, hxx0, _)| n_hy * n_hy * hxx0 > hy0 * hy0 * n_hxx) {
+            best = Some((n_hy, n_hxx, t_ref));
         }
     }
-    best
+    // b = Σ(h − h̄)(y − ȳ) / Σ(h − h̄)², σ² = (Σvar / n) / Σ(h − h̄)².
+    best.map(|(n_hy, n_hxx, t_ref)| (n_hy / n_hxx, (sum_var / n_hxx).sqrt(), t_ref + t0))
 }
 
 /// The noise variance of a measured series, learned from the differences of successive

@@ -550,8 +550,10 @@ fn hinge_onset(
 /// by a bounded amount.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 struct DiffNoise {
-    /// σ² learned, (m/s)²; `None` before the first report.
-    var: Option<f64>,
+    /// σ² learned, (m/s)²; 0 before the first report (after it, never 0: the prior is at
+    /// least the quantisation's variance and each step keeps a share of it), which keeps
+    /// the gate within its 256 bytes.
+    var: f64,
     /// Differences averaged so far (capped at the window).
     n: f64,
 }
@@ -566,23 +568,25 @@ const DIFF_NOISE_MAX_GAP_S: f64 = 2.0;
 impl DiffNoise {
     /// Starts from the declared variance `prior` if nothing is learned yet.
     fn prime(&mut self, prior: f64) {
-        if self.var.is_none() {
-            self.var = Some(prior);
+        if self.var == 0.0 {
+            self.var = prior;
         }
+    }
+
+    /// σ², once a report was seen.
+    fn var(&self) -> Option<f64> {
+        (self.var > 0.0).then_some(self.var)
     }
 
     /// Learns from the difference `d` of two successive reports.
     fn learn(&mut self, d: f64, window: f64) {
-        let Some(var) = self.var.as_mut() else {
-            return;
-        };
-        if !d.is_finite() {
+        if self.var().is_none() || !d.is_finite() {
             return;
         }
-        let sample = (0.5 * d * d).min(DIFF_NOISE_WINSOR * *var);
+        let sample = (0.5 * d * d).min(DIFF_NOISE_WINSOR * self.var);
         self.n = (self.n + 1.0).min(window);
         let w = 1.0 / (self.n + DIFF_NOISE_PRIOR).min(window);
-        *var += w * (sample - *var);
+        self.var += w * (sample - self.var);
     }
 }
 
@@ -878,8 +882,16 @@ impl Gate {
         }
         if let (false, Some(lambda)) = (r.flags.along_track, p.along_track_accel_mps2) {
             if let Some((rate, sigma, _)) = self.accel_onset(lambda) {
+                // With hysteresis, like every rate test: the trend test's slope is still
+                // diluted when the onset test finds a gentle acceleration, and would let it
+                // flicker.
+                let scale = if old.accel_onset || old.along_track {
+                    p.release_ratio
+                } else {
+                    1.0
+                };
                 let a = rate.abs();
-                r.flags.accel_onset = a > lambda && a > p.onset_sigmas * sigma;
+                r.flags.accel_onset = a > scale * lambda && a > scale * p.onset_sigmas * sigma;
                 r.onset_accel_mps2 = Some(rate);
             }
         }
@@ -887,7 +899,7 @@ impl Gate {
         // else the stated one.
         let learned_var_u = self
             .vrate_noise
-            .var
+            .var()
             .filter(|_| p.vrate_noise_window_reports > 0.0)
             .map(|v| v.max(p.vrate_quantum_mps.powi(2) / 12.0));
         let (mut n, mut sum, mut var) = (0.0, 0.0, 0.0);
@@ -1273,7 +1285,7 @@ mod tests {
                 onset = Some(k - 200);
             }
         }
-        let sigma = gate.vrate_noise.var.map(f64::sqrt);
+        let sigma = gate.vrate_noise.var().map(f64::sqrt);
         (fired as f64 / level as f64, onset, sigma)
     }
 

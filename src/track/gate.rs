@@ -1554,4 +1554,55 @@ mod tests {
         );
         assert_eq!(gate.reading().turn_rate_rad_s, None);
     }
+
+    /// Any f64 a decoder could hand over, the awkward ones often.
+    fn any_value() -> impl proptest::strategy::Strategy<Value = f64> {
+        use proptest::prelude::*;
+        prop_oneof![
+            4 => -400.0..400.0f64,
+            1 => Just(0.0),
+            1 => Just(f64::NAN),
+            1 => Just(f64::INFINITY),
+            1 => Just(-1e300),
+            1 => Just(1e300),
+            1 => Just(f64::MIN_POSITIVE),
+        ]
+    }
+
+    proptest::proptest! {
+        /// Whatever reports arrive (non-finite values, zero or huge covariances, repeated or
+        /// jumping times, measured or derived), the gate never panics and what it reads is
+        /// finite or absent, and a test that holds has its statistic.
+        #[test]
+        fn any_report_sequence_gives_a_finite_reading(
+            reports in proptest::collection::vec(
+                (0.0..3.0f64, any_value(), any_value(), any_value(), any_value(), any_value(),
+                 proptest::bool::ANY),
+                1..80,
+            )
+        ) {
+            let mut gate = Gate::new(GateParams::default());
+            let mut t = 0.0;
+            for (dt, ve, vn, vu, var_h, var_u, measured) in reports {
+                t += dt;
+                let cov = Matrix3::from_diagonal(&Vector3::new(var_h.abs(), var_h.abs(), var_u.abs()));
+                let r = *gate.push(t, &Observed { value: Vector3::new(ve, vn, vu), cov }, measured);
+                for v in [
+                    r.turn_rate_rad_s,
+                    r.onset_turn_rate_rad_s,
+                    r.along_track_accel_mps2,
+                    r.onset_accel_mps2,
+                    r.vertical_rate_mps,
+                ]
+                .into_iter()
+                .flatten()
+                {
+                    proptest::prop_assert!(v.is_finite(), "{r:?}");
+                }
+                proptest::prop_assert!(!r.flags.accel_onset || r.onset_accel_mps2.is_some());
+                proptest::prop_assert!(!r.flags.vertical || r.vertical_rate_mps.is_some());
+                proptest::prop_assert!(gate.vrate_noise.var().is_none_or(f64::is_finite));
+            }
+        }
+    }
 }

@@ -843,10 +843,10 @@ pub(crate) fn estimate_of<const N: usize>(
 ) -> Estimate {
     Estimate {
         t_s,
-        pos_m: x.fixed_rows::<3>(POS).into_owned(),
-        vel_mps: x.fixed_rows::<3>(VEL).into_owned(),
-        pos_cov_m2: p.fixed_view::<3, 3>(POS, POS).into_owned(),
-        vel_cov_m2ps2: p.fixed_view::<3, 3>(VEL, VEL).into_owned(),
+        pos_m: kalman::rows::<3, _>(&x, POS),
+        vel_mps: kalman::rows::<3, _>(&x, VEL),
+        pos_cov_m2: kalman::block::<3, 3, _, _>(&p, POS, POS),
+        vel_cov_m2ps2: kalman::block::<3, 3, _, _>(&p, VEL, VEL),
         mode: info.labels.mode,
         mode_probabilities: info.mode_probabilities,
         filter: info.filter,
@@ -1020,7 +1020,7 @@ impl Tracker for ImmTracker {
                 Ok(())
             }
             Start::Running => {
-                let up = local_up(&self.imm.combined_state().fixed_rows::<3>(POS).into_owned());
+                let up = local_up(&kalman::rows::<3, _>(&self.imm.combined_state(), POS));
                 let m = &self.noise.prepare(m, &up);
                 let Some(obs) = Observation::of(m.position.as_ref(), m.velocity.as_ref()) else {
                     return Ok(());

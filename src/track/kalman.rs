@@ -54,6 +54,26 @@ pub fn symmetrise<const N: usize>(a: &SMatrix<f64, N, N>) -> SMatrix<f64, N, N> 
     (a + a.transpose()) * 0.5
 }
 
+/// The `R`×`C` block of `m` at (`row`, `col`), copied by a loop. A fixed view's
+/// `into_owned` goes through an iterator that nalgebra does not inline: 3 % of a
+/// `kalman-cv` fleet replay went there.
+#[inline(always)]
+pub fn block<const R: usize, const C: usize, const N: usize, const M: usize>(
+    m: &SMatrix<f64, N, M>,
+    row: usize,
+    col: usize,
+) -> SMatrix<f64, R, C> {
+    let mut out = SMatrix::<f64, R, C>::zeros();
+    out.copy_from(&m.fixed_view::<R, C>(row, col));
+    out
+}
+
+/// The `R` entries of `v` from `row` (see [`block`]).
+#[inline(always)]
+pub fn rows<const R: usize, const N: usize>(v: &SVector<f64, N>, row: usize) -> SVector<f64, R> {
+    block::<R, 1, N, 1>(v, row, 0)
+}
+
 /// Prediction: x ← F x, P ← F P Fᵀ + Q (symmetrised).
 pub fn predict<const N: usize>(
     x: &mut SVector<f64, N>,
@@ -357,13 +377,14 @@ pub fn update_selected<const N: usize, const M: usize>(
     for (m, &c) in sel.iter().enumerate() {
         slot[c] = m;
     }
-    let g = SMatrix::<f64, N, M>::from_fn(|i, m| {
-        if i == sel[m] {
-            1.0 - k[(i, m)]
-        } else {
-            0.0 - k[(i, m)]
+    // Filled by loops, not `from_fn`: nalgebra builds that through an iterator it does not
+    // inline, 3 % of a `kalman-cv` fleet replay.
+    let mut g = SMatrix::<f64, N, M>::zeros();
+    for (m, &c) in sel.iter().enumerate() {
+        for i in 0..N {
+            g[(i, m)] = if i == c { 1.0 } else { 0.0 } - k[(i, m)];
         }
-    });
+    }
     // A = (I − KH) P = P − K P[sel, :], column by column: A[:, j] = Σₖ (I − KH)[:, k] P[k, j]
     // with k ascending, the order of the dense product.
     let mut a = SMatrix::<f64, N, N>::zeros();

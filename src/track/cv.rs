@@ -120,12 +120,12 @@ impl MotionModel<6> for CvModel {
     /// F P Fᵀ = [[A + T(B + Bᵀ) + T² C, B + T C], [Bᵀ + T C, C]]. A third of the flops of two
     /// 6x6 products; tested equal to the generic form.
     fn predict(&self, x: &mut State6, p: &mut Matrix6, dt_s: f64) {
-        let v = kalman::rows::<3, _>(&x, 3);
+        let v = kalman::rows::<3, _>(x, 3);
         let mut pos = x.fixed_rows_mut::<3>(0);
         pos += v * dt_s;
-        let a = kalman::block::<3, 3, _, _>(&p, 0, 0);
-        let b = kalman::block::<3, 3, _, _>(&p, 0, 3);
-        let c = kalman::block::<3, 3, _, _>(&p, 3, 3);
+        let a = kalman::block::<3, 3, _, _>(p, 0, 0);
+        let b = kalman::block::<3, 3, _, _>(p, 0, 3);
+        let c = kalman::block::<3, 3, _, _>(p, 3, 3);
         let b_new = b + c * dt_s;
         let a_new = a + (b + b.transpose()) * dt_s + c * (dt_s * dt_s);
         p.fixed_view_mut::<3, 3>(0, 0).copy_from(&a_new);
@@ -262,10 +262,10 @@ impl CvKalman {
     fn estimate_of(&self, t_s: f64, x: &State6, p: &Matrix6) -> Estimate {
         Estimate {
             t_s,
-            pos_m: kalman::rows::<3, _>(&x, 0),
-            vel_mps: kalman::rows::<3, _>(&x, 3),
-            pos_cov_m2: kalman::block::<3, 3, _, _>(&p, 0, 0),
-            vel_cov_m2ps2: kalman::block::<3, 3, _, _>(&p, 3, 3),
+            pos_m: kalman::rows::<3, _>(x, 0),
+            vel_mps: kalman::rows::<3, _>(x, 3),
+            pos_cov_m2: kalman::block::<3, 3, _, _>(p, 0, 0),
+            vel_cov_m2ps2: kalman::block::<3, 3, _, _>(p, 3, 3),
             mode: FlightMode::Cv,
             mode_probabilities: [1.0, 0.0, 0.0, 0.0, 0.0],
             filter: NAME,

@@ -279,8 +279,8 @@ impl HybridTracker {
     /// Starts a track from the initiator's 9-state.
     fn start(&mut self, t_s: f64, x: &State9, p: &Matrix9, velocity: Option<&Observed>) {
         self.branch = Branch::Cv {
-            x: super::kalman::rows::<6, _>(&x, 0),
-            p: super::kalman::block::<6, 6, _, _>(&p, 0, 0),
+            x: super::kalman::rows::<6, _>(x, 0),
+            p: super::kalman::block::<6, 6, _, _>(p, 0, 0),
         };
         self.gate.clear();
         self.labels = Labels::CV;
@@ -290,7 +290,7 @@ impl HybridTracker {
         self.last_velocity_t_s = None;
         self.nis.clear();
         if let Some(v) = velocity {
-            let local = to_local_axes(&super::kalman::rows::<3, _>(&x, 0), v);
+            let local = to_local_axes(&super::kalman::rows::<3, _>(x, 0), v);
             self.gate.push(t_s, &local, true);
             self.last_velocity_t_s = Some(t_s);
         }
@@ -393,7 +393,7 @@ impl HybridTracker {
     /// The filter's current position in the track's frame, m.
     fn position_m(&self) -> Vector3<f64> {
         match &self.branch {
-            Branch::Cv { x, .. } => super::kalman::rows::<3, _>(&x, 0),
+            Branch::Cv { x, .. } => super::kalman::rows::<3, _>(x, 0),
             Branch::Imm { .. } => super::kalman::rows::<3, _>(&self.imm.combined_state(), 0),
         }
     }

@@ -843,10 +843,10 @@ pub(crate) fn estimate_of<const N: usize>(
 ) -> Estimate {
     Estimate {
         t_s,
-        pos_m: kalman::rows::<3, _>(&x, POS),
-        vel_mps: kalman::rows::<3, _>(&x, VEL),
-        pos_cov_m2: kalman::block::<3, 3, _, _>(&p, POS, POS),
-        vel_cov_m2ps2: kalman::block::<3, 3, _, _>(&p, VEL, VEL),
+        pos_m: kalman::rows::<3, _>(x, POS),
+        vel_mps: kalman::rows::<3, _>(x, VEL),
+        pos_cov_m2: kalman::block::<3, 3, _, _>(p, POS, POS),
+        vel_cov_m2ps2: kalman::block::<3, 3, _, _>(p, VEL, VEL),
         mode: info.labels.mode,
         mode_probabilities: info.mode_probabilities,
         filter: info.filter,

@@ -35,7 +35,7 @@ use super::imm::{
     estimate_of, labels_of_mode, AxisThresholds, EstimateInfo, Imm, ImmMode, ImmParams, InitParams,
     Initiator, Labels, Start, IMM_NAME, N_MODES,
 };
-use super::kalman::MotionModel;
+use super::kalman::{self, MotionModel};
 use super::models::{Cv, Matrix6, Matrix9, Model, State6, State9, ACC};
 use super::nis::NisWindow;
 use super::noise::{local_up, NoiseLearner, NoiseParams};
@@ -279,8 +279,8 @@ impl HybridTracker {
     /// Starts a track from the initiator's 9-state.
     fn start(&mut self, t_s: f64, x: &State9, p: &Matrix9, velocity: Option<&Observed>) {
         self.branch = Branch::Cv {
-            x: super::kalman::rows::<6, _>(x, 0),
-            p: super::kalman::block::<6, 6, _, _>(p, 0, 0),
+            x: kalman::rows::<6, _>(x, 0),
+            p: kalman::block::<6, 6, _, _>(p, 0, 0),
         };
         self.gate.clear();
         self.labels = Labels::CV;
@@ -290,7 +290,7 @@ impl HybridTracker {
         self.last_velocity_t_s = None;
         self.nis.clear();
         if let Some(v) = velocity {
-            let local = to_local_axes(&super::kalman::rows::<3, _>(x, 0), v);
+            let local = to_local_axes(&kalman::rows::<3, _>(x, 0), v);
             self.gate.push(t_s, &local, true);
             self.last_velocity_t_s = Some(t_s);
         }
@@ -356,15 +356,15 @@ impl HybridTracker {
     fn feed_gate(&mut self, m: &Measurement) {
         let x = match &self.branch {
             Branch::Cv { x, .. } => *x,
-            Branch::Imm { .. } => super::kalman::rows::<6, _>(&self.imm.combined_state(), 0),
+            Branch::Imm { .. } => kalman::rows::<6, _>(&self.imm.combined_state(), 0),
         };
-        let pos = super::kalman::rows::<3, _>(&x, 0);
+        let pos = kalman::rows::<3, _>(&x, 0);
         if let Some(v) = &m.velocity {
             self.gate.push(m.t_s, &to_local_axes(&pos, v), true);
             self.last_velocity_t_s = Some(m.t_s);
         } else if self.velocity_stale(m.t_s) {
             let derived = Observed {
-                value: super::kalman::rows::<3, _>(&x, 3),
+                value: kalman::rows::<3, _>(&x, 3),
                 cov: self.velocity_correction_cov,
             };
             self.gate.push(m.t_s, &to_local_axes(&pos, &derived), false);
@@ -393,8 +393,8 @@ impl HybridTracker {
     /// The filter's current position in the track's frame, m.
     fn position_m(&self) -> Vector3<f64> {
         match &self.branch {
-            Branch::Cv { x, .. } => super::kalman::rows::<3, _>(x, 0),
-            Branch::Imm { .. } => super::kalman::rows::<3, _>(&self.imm.combined_state(), 0),
+            Branch::Cv { x, .. } => kalman::rows::<3, _>(x, 0),
+            Branch::Imm { .. } => kalman::rows::<3, _>(&self.imm.combined_state(), 0),
         }
     }
 
@@ -482,8 +482,8 @@ impl HybridTracker {
             Branch::Imm { .. } if t_s - self.last_fire_t_s >= self.params.min_manoeuvre_dwell_s => {
                 let (x, p) = self.imm.combined();
                 self.branch = Branch::Cv {
-                    x: super::kalman::rows::<6, _>(&x, 0),
-                    p: super::kalman::block::<6, 6, _, _>(&p, 0, 0),
+                    x: kalman::rows::<6, _>(&x, 0),
+                    p: kalman::block::<6, 6, _, _>(&p, 0, 0),
                 };
                 // Not read again before the next switch's reset: 2.6 KB less per aircraft.
                 self.imm.release();

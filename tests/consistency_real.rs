@@ -8,8 +8,8 @@
 //!   updates: its covariance there is a third of what the data show.
 //! - The hybrid and the IMM learn each aircraft's noise (`track::noise`): on AFR34ZG
 //!   (declares nothing, so R starts from NUCp's 38 m per axis) the hybrid's NIS per degree of
-//!   freedom moves from 0.04 to about 0.12 (the IMM's from 0.08 to 0.44) and its position
-//!   sigma from 7 m to about 2.4 m; on LAX NACp 10 from 3.5 to about 1.9.
+//!   freedom moves from 0.04 to about 0.1 (the IMM's from 0.08 to 0.44) and its position
+//!   sigma from 7 m to about 2.4 m; on LAX NACp 10 from 3.5 to about 2.
 //! - The windowed NIS is still seldom inside its band (under 25 %): the innovations are not
 //!   Gaussian white noise. They are quantised (constant altitude,
 //!   vertical rate and, at cruise, velocity steps) on AFR34ZG, and heavy-tailed under LAX's

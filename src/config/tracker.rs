@@ -545,6 +545,22 @@ mod tests {
         // The transition matrix built from them: CV kept over 1 s with exp(-1/60).
         let imm = crate::track::imm::Imm::new(p.imm);
         assert!((imm.transition(1.0)[0][0] - (-1.0f64 / 60.0).exp()).abs() < 1e-15);
+        // The gate's acceleration onset test and learned vertical noise (airliner preset).
+        let g = Config::from_toml_str(
+            "[tracker.gate]\npreset = \"airliner\"\naccel_onset_reports = 6\n\
+             accel_onset_reference_reports = 20\nvrate_noise_window_reports = 0\n",
+        )
+        .unwrap()
+        .tracker
+        .hybrid_params(false)
+        .unwrap()
+        .gate;
+        assert_eq!(
+            (g.accel_onset_reports, g.accel_onset_reference_reports),
+            (6, 20)
+        );
+        assert_eq!(g.vrate_noise_window_reports, 0.0);
+        assert_eq!(g.longest_window(), 26);
     }
 
     #[test]
@@ -555,6 +571,18 @@ mod tests {
             ("[tracker.gate]\nturn_window_reports = 99\n", "tracker.gate.turn_window_reports"),
             ("[tracker.gate]\nrelease_ratio = 0.0\n", "tracker.gate.release_ratio"),
             ("[tracker.gate]\nbogus = 1.0\n", "bogus"),
+            (
+                "[tracker.gate]\naccel_onset_reports = 20\naccel_onset_reference_reports = 20\n",
+                "tracker.gate.accel_onset_reference_reports",
+            ),
+            (
+                "[tracker.gate]\naccel_onset_reference_reports = 2\n",
+                "tracker.gate.accel_onset_reference_reports",
+            ),
+            (
+                "[tracker.gate]\nvrate_noise_window_reports = -1.0\n",
+                "tracker.gate.vrate_noise_window_reports",
+            ),
             (
                 "[tracker.imm]\nmean_sojourn_s = { ch = 0.0 }\n",
                 "tracker.imm.mean_sojourn_s.ch",

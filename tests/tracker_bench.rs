@@ -63,7 +63,9 @@ fn paper002_hybrid_against_kalman_and_imm() {
     eprintln!("{report}; mean detection delay {delay:.2} s");
     assert!(delay <= 2.0, "mean detection delay {delay} s");
     let fs = hy.false_switches_per_100().unwrap();
-    assert!(fs <= 1.0, "{fs} false switches per 100 straight updates");
+    // 0.06 over 100 runs since the gate learns the vertical rate's noise (0.28 before, most
+    // of them false climbs under NACv 2's vertical noise).
+    assert!(fs <= 0.2, "{fs} false switches per 100 straight updates");
     assert!(hy.label_accuracy().unwrap() > 0.95);
     // Consistency: the average position NEES inside the 95 % band of 2 dof over all samples
     // of one run at a time (a wide band: samples within a run are correlated).
@@ -81,7 +83,13 @@ fn departure_and_approach_labels() {
         let r = run(scenario, &["hybrid"], 10);
         let s = &r[0];
         let acc = s.label_accuracy().unwrap();
-        assert!(acc >= 0.90, "{scenario}: label accuracy {acc}");
+        let fs = s.false_switches_per_100().unwrap();
+        eprintln!("{scenario}: labels right {acc:.4}, false switches {fs:.2} per 100");
+        // 100 runs: departure 93.2 %, approach 95.5 % (92.0 % and 93.7 % before the gate's
+        // acceleration onset test and learned vertical noise).
+        let floor = if scenario == "departure" { 0.92 } else { 0.94 };
+        assert!(acc >= floor, "{scenario}: label accuracy {acc}");
+        assert!(fs <= 0.2, "{scenario}: {fs} false switches per 100");
         // Every mode the scenario flies is labelled correctly somewhere.
         for (truth, row) in &s.confusion {
             assert!(

@@ -1570,7 +1570,79 @@ mod tests {
         ]
     }
 
+    /// [`hinge_onset`] written plainly: for each split, the reference's slope by two-pass
+    /// least squares, then the hinge fit by its centred sums; the strongest split in σ.
+    fn hinge_reference(
+        all: &[(f64, f64, f64)],
+        max_newest: usize,
+        lambda: f64,
+    ) -> Option<(f64, f64, f64)> {
+        let n = all.len();
+        let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
+        let sum_var: f64 = all.iter().map(|p| p.2).sum();
+        let mut best: Option<(f64, f64, f64)> = None;
+        for m in 1..=max_newest {
+            let Some(split) = n.checked_sub(m).filter(|&s| s >= 3) else {
+                break;
+            };
+            let (rt, ry): (Vec<f64>, Vec<f64>) = all[..split].iter().map(|p| (p.0, p.1)).unzip();
+            let (tb, yb) = (mean(&rt), mean(&ry));
+            let sxx: f64 = rt.iter().map(|t| (t - tb) * (t - tb)).sum();
+            let sxy: f64 = rt.iter().zip(&ry).map(|(t, y)| (t - tb) * (y - yb)).sum();
+            if sxx <= 0.0 || (sxy / sxx).abs() >= lambda {
+                continue;
+            }
+            let t_ref = all[split - 1].0;
+            let h: Vec<f64> = all.iter().map(|p| (p.0 - t_ref).max(0.0)).collect();
+            let y: Vec<f64> = all.iter().map(|p| p.1).collect();
+            let (hb, yb) = (mean(&h), mean(&y));
+            let hxx: f64 = h.iter().map(|v| (v - hb) * (v - hb)).sum();
+            let hxy: f64 = h.iter().zip(&y).map(|(a, b)| (a - hb) * (b - yb)).sum();
+            if hxx <= 0.0 {
+                continue;
+            }
+            let (b, sigma) = (hxy / hxx, (sum_var / n as f64 / hxx).sqrt());
+            if best.is_none_or(|(b0, s0, _)| b.abs() / sigma > b0.abs() / s0) {
+                best = Some((b, sigma, t_ref));
+            }
+        }
+        best
+    }
+
     proptest::proptest! {
+        /// The one-pass, division-free [`hinge_onset`] finds the split the plain fit finds,
+        /// with the same rate, σ and onset time (to 1e-9, relative).
+        #[test]
+        fn hinge_onset_is_the_plain_least_squares_fit(
+            gaps in proptest::collection::vec(0.3..1.2f64, 4..32),
+            values in proptest::collection::vec(-3.0..3.0f64, 32),
+            ramp in -2.0..2.0f64,
+            start in 0usize..30,
+            t0 in 0.0..1e5f64,
+        ) {
+            let mut t = t0;
+            let mut points = Vec::new();
+            for (k, (gap, v)) in gaps.iter().zip(&values).enumerate() {
+                t += gap;
+                let y = 100.0 + v + ramp * (k.saturating_sub(start) as f64);
+                points.push((t, y, 0.5 + v.abs()));
+            }
+            let samples: Vec<Sample> = points
+                .iter()
+                .map(|&(t_s, speed_mps, var_h)| Sample { t_s, speed_mps, var_h, measured: true, ..Sample::default() })
+                .collect();
+            let fast = hinge_onset(&samples, 12, 0.3, |s| (s.speed_mps, s.var_h));
+            let plain = hinge_reference(&points, 12, 0.3);
+            let close = |a: f64, b: f64| (a - b).abs() <= 1e-9 * a.abs().max(b.abs()).max(1.0);
+            match (fast, plain) {
+                (None, None) => {}
+                (Some(f), Some(p)) => {
+                    proptest::prop_assert!(close(f.0, p.0) && close(f.1, p.1) && close(f.2, p.2), "{f:?} vs {p:?}");
+                }
+                (f, p) => proptest::prop_assert!(false, "{f:?} vs {p:?}"),
+            }
+        }
+
         /// Whatever reports arrive (non-finite values, zero or huge covariances, repeated or
         /// jumping times, measured or derived), the gate never panics and what it reads is
         /// finite or absent, and a test that holds has its statistic.

@@ -190,6 +190,31 @@ fn count(key: &str, v: usize, lo: usize, hi: usize) -> Result<usize, ConfigError
     }
 }
 
+/// An onset test's `{prefix}_reports` (0..=capacity − 3) and `{prefix}_reference_reports`
+/// (3..=capacity), each overriding the preset's (`preset`) when given, and together within
+/// the gate's capacity.
+fn onset_counts(
+    prefix: &str,
+    reports: Option<usize>,
+    reference: Option<usize>,
+    preset: (usize, usize),
+) -> Result<(usize, usize), ConfigError> {
+    let cap = GATE_CAPACITY;
+    let (key_n, key_ref) = (
+        format!("tracker.gate.{prefix}_reports"),
+        format!("tracker.gate.{prefix}_reference_reports"),
+    );
+    let n = reports.map_or(Ok(preset.0), |v| count(&key_n, v, 0, cap - 3))?;
+    let r = reference.map_or(Ok(preset.1), |v| count(&key_ref, v, 3, cap))?;
+    if n + r > cap {
+        return Err(bad(
+            &key_ref,
+            format!("{prefix}_reports + {prefix}_reference_reports must be at most {cap}"),
+        ));
+    }
+    Ok((n, r))
+}
+
 /// A threshold: ≥ 0, 0 disabling the test.
 fn threshold(key: &str, v: f64) -> Result<Option<f64>, ConfigError> {
     let v = check(key, v, 0.0, false, f64::MAX)?;
@@ -259,33 +284,18 @@ impl GateConfig {
         if let Some(v) = self.turn_window_reports {
             p.turn_window_reports = count(&k("turn_window_reports"), v, 3, cap)?;
         }
-        if let Some(v) = self.onset_reports {
-            p.onset_reports = count(&k("onset_reports"), v, 0, cap - 3)?;
-        }
-        if let Some(v) = self.onset_reference_reports {
-            p.onset_reference_reports = count(&k("onset_reference_reports"), v, 3, cap)?;
-        }
-        if p.onset_reports + p.onset_reference_reports > cap {
-            return Err(bad(
-                &k("onset_reference_reports"),
-                format!("onset_reports + onset_reference_reports must be at most {cap}"),
-            ));
-        }
-        if let Some(v) = self.accel_onset_reports {
-            p.accel_onset_reports = count(&k("accel_onset_reports"), v, 0, cap - 3)?;
-        }
-        if let Some(v) = self.accel_onset_reference_reports {
-            p.accel_onset_reference_reports =
-                count(&k("accel_onset_reference_reports"), v, 3, cap)?;
-        }
-        if p.accel_onset_reports + p.accel_onset_reference_reports > cap {
-            return Err(bad(
-                &k("accel_onset_reference_reports"),
-                format!(
-                    "accel_onset_reports + accel_onset_reference_reports must be at most {cap}"
-                ),
-            ));
-        }
+        (p.onset_reports, p.onset_reference_reports) = onset_counts(
+            "onset",
+            self.onset_reports,
+            self.onset_reference_reports,
+            (p.onset_reports, p.onset_reference_reports),
+        )?;
+        (p.accel_onset_reports, p.accel_onset_reference_reports) = onset_counts(
+            "accel_onset",
+            self.accel_onset_reports,
+            self.accel_onset_reference_reports,
+            (p.accel_onset_reports, p.accel_onset_reference_reports),
+        )?;
         if let Some(v) = self.onset_sigmas {
             p.onset_sigmas = check(&k("onset_sigmas"), v, 0.0, false, 100.0)?;
         }

@@ -120,13 +120,7 @@ impl<const N: usize> Prediction<N> {
                 + self.q.get((j, i)).copied().unwrap_or(0.0);
             (a + b) * 0.5
         };
-        let mut block = nalgebra::Matrix3::zeros();
-        for j in 0..3 {
-            for i in 0..3 {
-                block[(i, j)] = entry(offset + i, offset + j);
-            }
-        }
-        block
+        nalgebra::Matrix3::from_fn(|i, j| entry(offset + i, offset + j))
     }
 
     /// P(k+1|k) = Adapt·Φ P Φᵀ + Q (eq. 25; Adapt = 1 is the ordinary eq. 6), symmetrised.

@@ -355,12 +355,22 @@ impl GateReading {
         }
     }
 
-    /// Longitudinal movement.
-    pub fn speed(&self) -> SpeedTrend {
-        let sign = if self.flags.along_track {
+    /// The along-track acceleration of the rate test that holds (the trend test's, else the
+    /// onset test's), m/s²; `None` when neither holds.
+    pub fn along_track_rate_mps2(&self) -> Option<f64> {
+        if self.flags.along_track {
             self.along_track_accel_mps2
         } else if self.flags.accel_onset {
             self.onset_accel_mps2
+        } else {
+            None
+        }
+    }
+
+    /// Longitudinal movement.
+    pub fn speed(&self) -> SpeedTrend {
+        let sign = if self.flags.along_track || self.flags.accel_onset {
+            self.along_track_rate_mps2()
         } else if self.flags.speed_change {
             self.speed_change_mps
         } else if self.flags.accel_change {
@@ -896,12 +906,11 @@ impl Gate {
                 r.onset_accel_mps2 = Some(rate);
             }
         }
-        // Each report's variance: the learned one when learning (at least the quantisation's),
-        // else the stated one.
+        // Each report's variance: the learned one when learning (at least the quantisation's;
+        // nothing is learned with `vrate_noise_window_reports` 0), else the stated one.
         let learned_var_u = self
             .vrate_noise
             .var()
-            .filter(|_| p.vrate_noise_window_reports > 0.0)
             .map(|v| v.max(p.vrate_quantum_mps.powi(2) / 12.0));
         let (mut n, mut sum, mut var) = (0.0, 0.0, 0.0);
         for s in self

@@ -453,15 +453,9 @@ impl HybridTracker {
             Branch::Cv { x, p } if needs_imm => {
                 let mut x9 = State9::zeros();
                 x9.fixed_rows_mut::<6>(0).copy_from(&x);
-                if reading.flags.along_track || reading.flags.accel_onset {
+                if let Some(a) = reading.along_track_rate_mps2() {
                     // Start the acceleration at the gate's along-track estimate.
                     let v = Vector3::new(x[3], x[4], 0.0);
-                    let a = if reading.flags.along_track {
-                        reading.along_track_accel_mps2
-                    } else {
-                        reading.onset_accel_mps2
-                    }
-                    .unwrap_or(0.0);
                     if v.norm() > 1.0 {
                         x9.fixed_rows_mut::<3>(ACC).copy_from(&(v.normalize() * a));
                     }

@@ -194,6 +194,7 @@ impl Aircraft {
     /// batch (a shared atomic per frame costs more than the frame when two cores contend).
     pub fn handle(&mut self, d: &Decoded, counts: &mut Counts) -> bool {
         self.facts.messages += 1;
+        counts.messages += 1;
         self.facts.last_seen = self.facts.last_seen.max(d.time_s);
         if let Some(signal) = d.signal {
             let power = (f32::from(signal) / 255.0).powi(2);
@@ -618,8 +619,18 @@ fn publish(aircraft: &mut Aircraft, slot: &Slot, ctx: &TaskContext, counts: &mut
             slot.store(Arc::new(p));
         }
         None => {
-            if let Some(p) = aircraft.ended.take() {
+            if let Some(mut p) = aircraft.ended.take() {
+                p.facts = aircraft.facts;
                 slot.store(Arc::new(*p));
+            } else if let Some(last) = slot.load() {
+                // No estimate (the track ended and no new one started yet): the last
+                // snapshot stays, with what the aircraft said since (its message count,
+                // callsign, ...). One copy per such batch, only while facts change.
+                if last.facts != aircraft.facts {
+                    let mut p = Published::clone(&last);
+                    p.facts = aircraft.facts;
+                    slot.store(Arc::new(p));
+                }
             }
         }
     }
@@ -731,6 +742,62 @@ mod tests {
             (s.lat - 48.0).abs() < 0.02 && (s.lon - 2.0).abs() < 1e-3,
             "{s:?}"
         );
+    }
+
+    /// A track that ended keeps its last estimate on show, and what the aircraft says after
+    /// (its message count, its callsign) still reaches the snapshot.
+    #[test]
+    fn an_ended_tracks_snapshot_keeps_counting_messages() {
+        use crate::sim::encode::{airborne_velocity, identification, VelocityReport};
+        let cfg = config(crate::daemon::build_tracker);
+        let mut ac = Aircraft::new(ICAO, &cfg);
+        let mut counts = Counts::default();
+        let mut dec = decoder();
+        let ctx = TaskContext {
+            registry: Arc::new(Registry::default()),
+            stats: Arc::new(Stats::new()),
+            updates: None,
+            feed: Arc::new(crate::output::UpdateFeed::default()),
+            shutdown: tokio_util::sync::CancellationToken::new(),
+            prediction_horizons_s: Vec::new(),
+        };
+        let slot = Slot::default();
+        let mut one = |ac: &mut Aircraft, d: &[Decoded]| {
+            for d in d {
+                ac.handle(d, &mut counts);
+            }
+            publish(ac, &slot, &ctx, &mut counts);
+            slot.load().unwrap_or_else(|| panic!("a snapshot"))
+        };
+        let first = one(&mut ac, &positions(&mut dec, 100.0, 48.0, 2.0, 10));
+        assert_eq!(first.facts.messages, 10);
+        // A velocity report 200 s later ends the track (past the gap rule): no estimate.
+        let velocity = airborne_velocity(
+            ICAO,
+            &VelocityReport {
+                ve_kt: 0.0,
+                vn_kt: 447.0,
+                vrate_fpm: 0.0,
+                vrate_source: crate::decode::VerticalRateSource::Baro,
+                nac_v: 2,
+            },
+        );
+        let late = |t_s: f64, bytes: &[u8], dec: &mut Decoder| {
+            RawFrame::new(t_s, bytes, None)
+                .and_then(|f| dec.decode(&f).ok())
+                .unwrap_or_else(|| panic!("a frame"))
+        };
+        let ended = one(&mut ac, &[late(300.0, &velocity, &mut dec)]);
+        assert!(ac.tracker.estimate().is_none());
+        assert_eq!(ended.estimate, first.estimate);
+        assert_eq!(ended.facts.messages, 11);
+        // Then only its identification: the same estimate, the new facts.
+        let callsign = crate::decode::Callsign(*b"AFR34ZG ");
+        let id = identification(ICAO, 3, &callsign);
+        let named = one(&mut ac, &[late(301.0, &id, &mut dec)]);
+        assert_eq!(named.estimate, first.estimate);
+        assert_eq!(named.facts.messages, 12);
+        assert_eq!(named.facts.callsign, Some(callsign));
     }
 
     #[test]

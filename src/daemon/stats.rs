@@ -39,6 +39,10 @@ pub struct Stats {
     pub positions_accepted: Counter,
     /// Positions refused (implausible jump, NL mismatch, ...), by reason.
     pub positions_rejected: Family<Labels, Counter>,
+    /// Messages that reached their aircraft (routed, not dropped): with
+    /// `channel_dropped_messages`, every DF17/18 message the router took. Counted by the
+    /// aircraft, so the sum checks the router's own count.
+    pub aircraft_messages: Counter,
     /// Tracker updates done and refused.
     pub track_updates: Counter,
     pub track_errors: Family<Labels, Counter>,
@@ -227,6 +231,7 @@ impl Stats {
             crc_fixed: Counter::default(),
             positions_accepted: Counter::default(),
             positions_rejected: Family::default(),
+            aircraft_messages: Counter::default(),
             track_updates: Counter::default(),
             track_errors: Family::default(),
             track_resets_nonfinite: Counter::default(),
@@ -289,6 +294,11 @@ impl Stats {
             "positions_rejected",
             "CPR positions refused, by reason",
             s.positions_rejected.clone(),
+        );
+        registry.register(
+            "aircraft_messages",
+            "Messages that reached their aircraft (routed, not dropped)",
+            s.aircraft_messages.clone(),
         );
         registry.register("track_updates", "Tracker updates", s.track_updates.clone());
         registry.register(
@@ -540,6 +550,7 @@ impl Stats {
             crc_fixed: self.crc_fixed.get(),
             positions_accepted: self.positions_accepted.get(),
             positions_rejected: read(&self.positions_rejected, "reason", POSITION_REJECT_REASONS),
+            aircraft_messages: self.aircraft_messages.get(),
             track_updates: self.track_updates.get(),
             track_errors: read(&self.track_errors, "reason", TRACK_ERROR_REASONS),
             track_resets_nonfinite: self.track_resets_nonfinite.get(),
@@ -635,6 +646,8 @@ pub struct StatsSnapshot {
     pub crc_fixed: u64,
     pub positions_accepted: u64,
     pub positions_rejected: BTreeMap<String, u64>,
+    /// Messages that reached their aircraft (routed, not dropped).
+    pub aircraft_messages: u64,
     pub track_updates: u64,
     pub track_errors: BTreeMap<String, u64>,
     /// Tracks reset instead of publishing a non-finite or runaway estimate.
@@ -674,6 +687,8 @@ pub struct StatsSnapshot {
 /// work once two cores contend for its cache line.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Counts {
+    /// See [`Stats::aircraft_messages`].
+    pub messages: u64,
     pub positions_accepted: u64,
     pub track_updates: u64,
     /// By [`POSITION_REJECT_REASONS`] index.
@@ -715,6 +730,9 @@ impl Counts {
 
     /// Adds everything to `stats` and starts again from zero.
     pub fn flush(&mut self, stats: &Stats) {
+        if self.messages > 0 {
+            stats.aircraft_messages.inc_by(self.messages);
+        }
         if self.positions_accepted > 0 {
             stats.positions_accepted.inc_by(self.positions_accepted);
         }

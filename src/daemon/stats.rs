@@ -40,8 +40,9 @@ pub struct Stats {
     /// Positions refused (implausible jump, NL mismatch, ...), by reason.
     pub positions_rejected: Family<Labels, Counter>,
     /// Messages that reached their aircraft (routed, not dropped): with
-    /// `channel_dropped_messages`, every DF17/18 message the router took. Counted by the
-    /// aircraft, so the sum checks the router's own count.
+    /// `channel_dropped_messages`, every message the router gave an aircraft (DF17/18, and
+    /// the Mode S replies whose address it knows). Counted by the aircraft, so the sum
+    /// checks the router's own count.
     pub aircraft_messages: Counter,
     /// Tracker updates done and refused.
     pub track_updates: Counter,

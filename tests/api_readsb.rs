@@ -136,10 +136,24 @@ fn check_aircraft_json(body: &str) -> (f64, BTreeMap<String, Value>) {
         if let Some(alt) = a.get("alt_geom") {
             assert!(alt.is_i64(), "alt_geom: {a}");
         }
-        assert!(a["gs"].as_f64().unwrap() >= 0.0, "{a}");
-        let track = a["track"].as_f64().unwrap();
-        assert!((0.0..360.0).contains(&track), "{a}");
-        assert!(a["baro_rate"].is_i64(), "{a}");
+        // The estimate's keys, all or none: an aircraft heard without a position yet
+        // has none (readsb leaves out what it has no value for).
+        let estimated = a.get("lat").is_some();
+        for k in [
+            "lat",
+            "lon",
+            "gs",
+            "track",
+            "baro_rate",
+            "seen_pos",
+            "mode",
+            "pos_sigma_m",
+        ] {
+            assert_eq!(a.get(k).is_some(), estimated, "{k}: {a}");
+        }
+        if estimated {
+            check_estimate(a);
+        }
         if let Some(sq) = a.get("squawk") {
             let sq = sq.as_str().unwrap();
             assert!(
@@ -154,18 +168,12 @@ fn check_aircraft_json(body: &str) -> (f64, BTreeMap<String, Value>) {
                 "{a}"
             );
         }
-        assert!((-90.0..=90.0).contains(&a["lat"].as_f64().unwrap()), "{a}");
-        assert!(
-            (-180.0..=180.0).contains(&a["lon"].as_f64().unwrap()),
-            "{a}"
-        );
         if let Some(nic) = a.get("nic") {
             assert!(int_in(nic, 0, 11), "{a}");
         }
         if let Some(rc) = a.get("rc") {
             assert!(rc.as_u64().is_some_and(|r| r > 0), "{a}");
         }
-        assert!(a["seen_pos"].as_f64().unwrap() >= 0.0, "{a}");
         assert!(a["seen"].as_f64().unwrap() >= 0.0, "{a}");
         assert!(a["messages"].as_u64().unwrap() > 0, "{a}");
         if let Some(r) = a.get("rssi") {
@@ -185,6 +193,27 @@ fn check_aircraft_json(body: &str) -> (f64, BTreeMap<String, Value>) {
         out.insert(hex.to_string(), a.clone());
     }
     (now, out)
+}
+
+/// An aircraft's estimated keys, against the documented types.
+fn check_estimate(a: &Value) {
+    assert!(a["gs"].as_f64().unwrap() >= 0.0, "{a}");
+    let track = a["track"].as_f64().unwrap();
+    assert!((0.0..360.0).contains(&track), "{a}");
+    assert!(a["baro_rate"].is_i64(), "{a}");
+    assert!((-90.0..=90.0).contains(&a["lat"].as_f64().unwrap()), "{a}");
+    assert!(
+        (-180.0..=180.0).contains(&a["lon"].as_f64().unwrap()),
+        "{a}"
+    );
+    assert!(a["seen_pos"].as_f64().unwrap() >= 0.0, "{a}");
+    assert!(a["mode"].is_string(), "{a}");
+    assert!(a["pos_sigma_m"].as_f64().unwrap() >= 0.0, "{a}");
+}
+
+/// The aircraft with a position.
+fn positioned(aircraft: &BTreeMap<String, Value>) -> usize {
+    aircraft.values().filter(|a| a.get("lat").is_some()).count()
 }
 
 fn check_receiver_json(head: &str, body: &str) -> Value {
@@ -216,7 +245,12 @@ async fn aircraft_json_has_readsbs_fields_and_types() {
     assert_eq!(v["messages"], stats["frames"]);
     let (_, tracks) = get_json(d.addr, "/api/v1/tracks").await;
     let tracks = tracks["tracks"].as_array().unwrap();
-    assert_eq!(aircraft.len(), tracks.len());
+    // Every track, and every other aircraft the registry holds, without a position.
+    assert_eq!(positioned(&aircraft), tracks.len());
+    assert_eq!(
+        aircraft.len() as u64,
+        stats["tracks_active"].as_u64().unwrap()
+    );
     assert!(!tracks.is_empty());
     for t in tracks {
         let a = &aircraft[t["icao"].as_str().unwrap()];
@@ -293,13 +327,43 @@ async fn ground_and_a_busy_sky() {
 
     let config = Config::from_toml_str("[decode]\nnominal_rate_hz = 270.0\n").unwrap();
     let d = TestDaemon::replay("lax-messages.avr.txt", config).await;
-    d.wait_replay().await;
+    let stats = d.wait_replay().await;
     let (_, _, body) = get_full(d.addr, "/data/aircraft.json").await;
     let (_, aircraft) = check_aircraft_json(&body);
     let (_, tracks) = get_json(d.addr, "/api/v1/tracks").await;
-    assert_eq!(aircraft.len(), tracks["tracks"].as_array().unwrap().len());
+    assert_eq!(
+        positioned(&aircraft),
+        tracks["tracks"].as_array().unwrap().len()
+    );
+    assert_eq!(
+        aircraft.len() as u64,
+        stats["tracks_active"].as_u64().unwrap()
+    );
     // (At the end of the recording: those not yet retired after a minute of silence.)
-    assert!(aircraft.len() >= 40, "{}", aircraft.len());
+    assert!(positioned(&aircraft) >= 40, "{}", aircraft.len());
+    // And aircraft heard without a position, listed as readsb lists them: what they said
+    // about themselves, their message count and age.
+    let unplaced: Vec<&Value> = aircraft
+        .values()
+        .filter(|a| a.get("lat").is_none())
+        .collect();
+    // 24 of the 73 at the end (18 of them with an altitude): positions of one CPR format
+    // only, or none at all.
+    assert!(unplaced.len() >= 20, "{}", unplaced.len());
+    let with_altitude = unplaced
+        .iter()
+        .filter(|a| a.get("alt_baro").is_some())
+        .count();
+    assert!(with_altitude >= 15, "{with_altitude}");
+    let tracked: Vec<&str> = tracks["tracks"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|t| t["icao"].as_str().unwrap())
+        .collect();
+    assert!(unplaced
+        .iter()
+        .all(|a| !tracked.contains(&a["hex"].as_str().unwrap())));
     assert!(aircraft.values().all(|a| a.get("rssi").is_none()));
     let named = aircraft
         .values()
@@ -345,7 +409,10 @@ async fn a_tar1090_directory_is_served_with_our_data() {
     assert_eq!(code, 200);
     let (_, aircraft) = check_aircraft_json(&body);
     let (_, tracks) = get_json(d.addr, "/api/v1/tracks").await;
-    assert_eq!(aircraft.len(), tracks["tracks"].as_array().unwrap().len());
+    assert_eq!(
+        positioned(&aircraft),
+        tracks["tracks"].as_array().unwrap().len()
+    );
     assert!(aircraft.contains_key("48520a"));
     let (code, head, body) = get_full(d.addr, "/tar1090/data/receiver.json").await;
     assert_eq!(code, 200);

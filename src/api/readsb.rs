@@ -11,12 +11,16 @@
 //! `squawk`, `category`, `version`, `nac_p`, `nac_v`, `nic` and `rc` (from the position's
 //! type code, the NIC supplements taken as 0: the lower bound), `rssi`. A key is left out
 //! when there is no value, as readsb does. Our own fields follow: `mode`, `pos_sigma_m`.
+//! As in readsb, an aircraft heard without a position yet (one CPR format only so far, or
+//! none: Mode S replies, an identification) is listed too, with what it said and without
+//! the estimate's keys ([`crate::daemon::registry::SlotCell::heard`]).
 //!
 //! No `binCraft`, `zstd`, `reapi` or `globeIndexGrid` in `receiver.json`: those switch tar1090
 //! to binary formats. `history` is 0: tar1090 asks for no `history_N.json`.
 
 use super::{ApiError, ApiState};
-use crate::daemon::registry::Published;
+use crate::daemon::registry::{AircraftFacts, Published};
+use crate::decode::Icao;
 use axum::body::Bytes;
 use axum::extract::State;
 use axum::http::{header, HeaderValue};
@@ -43,7 +47,9 @@ pub struct AircraftJson {
     pub aircraft: Vec<ReadsbAircraft>,
 }
 
-/// One aircraft of `aircraft.json`; `None` keys are left out.
+/// One aircraft of `aircraft.json`; `None` keys are left out. An aircraft heard without a
+/// position yet has no `lat`, `lon`, `gs`, `track`, `baro_rate`, `seen_pos`, `mode` or
+/// `pos_sigma_m` (readsb leaves out the keys it has no value for).
 #[derive(Debug, Serialize, utoipa::ToSchema)]
 pub struct ReadsbAircraft {
     pub hex: String,
@@ -59,24 +65,30 @@ pub struct ReadsbAircraft {
     #[serde(skip_serializing_if = "Option::is_none")]
     pub alt_geom: Option<i32>,
     /// Ground speed, kt (estimate).
-    pub gs: f64,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub gs: Option<f64>,
     /// Track over ground, degrees (estimate).
-    pub track: f64,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub track: Option<f64>,
     /// Vertical rate, ft/min (estimate).
-    pub baro_rate: i32,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub baro_rate: Option<i32>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub squawk: Option<String>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub category: Option<String>,
-    pub lat: f64,
-    pub lon: f64,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub lat: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub lon: Option<f64>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub nic: Option<u8>,
     /// Radius of containment, m.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub rc: Option<u32>,
     /// Age of the position, s.
-    pub seen_pos: f64,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub seen_pos: Option<f64>,
     /// Age of the last message, s.
     pub seen: f64,
     pub messages: u64,
@@ -95,9 +107,11 @@ pub struct ReadsbAircraft {
     #[schema(value_type = Vec<String>, max_items = 0)]
     pub tisb: [&'static str; 0],
     /// Ours: the flight-mode label of the estimate.
-    pub mode: &'static str,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub mode: Option<&'static str>,
     /// Ours: 1-sigma horizontal position uncertainty, m.
-    pub pos_sigma_m: f64,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub pos_sigma_m: Option<f64>,
 }
 
 /// `alt_baro`: feet, or `"ground"`.
@@ -178,7 +192,22 @@ impl ReadsbAircraft {
     /// The aircraft as readsb would list it, `now_s` being the file's time.
     pub fn from_published(p: &Published, now_s: f64) -> Self {
         let s = p.track_state();
-        let f = &p.facts;
+        Self {
+            gs: Some(round(s.ground_speed_mps * KT_PER_MPS, 1)),
+            track: Some(round(s.track_deg, 2)),
+            baro_rate: Some((s.vertical_rate_mps * FPM_PER_MPS).round() as i32),
+            lat: Some(round(s.lat, 6)),
+            lon: Some(round(s.lon, 6)),
+            seen_pos: Some(round((now_s - s.t).max(0.0), 1)),
+            mode: Some(s.mode),
+            pos_sigma_m: Some(round(s.pos_sigma_m, 1)),
+            ..Self::from_facts(p.icao, &p.facts, now_s)
+        }
+    }
+
+    /// An aircraft from what it said about itself alone: no estimate, so no position,
+    /// velocity or label (an aircraft heard without a position yet).
+    pub fn from_facts(icao: Icao, f: &AircraftFacts, now_s: f64) -> Self {
         let alt_baro = if f.on_ground {
             Some(AltBaro::Ground("ground"))
         } else {
@@ -192,30 +221,26 @@ impl ReadsbAircraft {
             Some((nic, rc)) => (Some(nic), (rc > 0).then_some(rc)),
             None => (None, None),
         };
-        let round = |x: f64, places: i32| {
-            let k = 10f64.powi(places);
-            (x * k).round() / k
-        };
         // Full scale is 0 dBFS; readsb's floor is about -49.5 dBFS.
         let rssi = f
             .signal_power
             .map(|power| round(10.0 * f64::from(power).max(1e-5).log10(), 1));
         Self {
-            hex: s.icao.to_string(),
+            hex: icao.to_string(),
             kind: "adsb_icao",
-            flight: s.callsign.as_ref().map(|c| format!("{c:<8}")),
+            flight: f.callsign.as_ref().map(|c| format!("{:<8}", c.as_str())),
             alt_baro,
             alt_geom,
-            gs: round(s.ground_speed_mps * KT_PER_MPS, 1),
-            track: round(s.track_deg, 2),
-            baro_rate: (s.vertical_rate_mps * FPM_PER_MPS).round() as i32,
-            squawk: s.squawk,
-            category: s.category,
-            lat: round(s.lat, 6),
-            lon: round(s.lon, 6),
+            gs: None,
+            track: None,
+            baro_rate: None,
+            squawk: f.squawk_octal(),
+            category: f.category_label(),
+            lat: None,
+            lon: None,
             nic,
             rc,
-            seen_pos: round((now_s - s.t).max(0.0), 1),
+            seen_pos: None,
             seen: round((now_s - f.last_seen).max(0.0), 1),
             messages: f.messages,
             rssi,
@@ -224,10 +249,27 @@ impl ReadsbAircraft {
             nac_v: f.nac_v,
             mlat: [],
             tisb: [],
-            mode: s.mode,
-            pos_sigma_m: round(s.pos_sigma_m, 1),
+            mode: None,
+            pos_sigma_m: None,
         }
     }
+}
+
+/// `x` rounded to `places` decimals.
+fn round(x: f64, places: i32) -> f64 {
+    let k = 10f64.powi(places);
+    (x * k).round() / k
+}
+
+/// The aircraft with a position and those without, merged in address order (each list is
+/// sorted by address already).
+fn merged(
+    with: impl Iterator<Item = ReadsbAircraft>,
+    without: impl Iterator<Item = ReadsbAircraft>,
+) -> Vec<ReadsbAircraft> {
+    let mut all: Vec<ReadsbAircraft> = with.chain(without).collect();
+    all.sort_by(|a, b| a.hex.cmp(&b.hex));
+    all
 }
 
 /// readsb's answers are never cached: tar1090 polls them.
@@ -252,12 +294,18 @@ pub(super) async fn aircraft(State(api): State<ApiState>) -> Result<Response, Ap
         serde_json::to_vec(&AircraftJson {
             now,
             messages: shared.stats.frames_in.get(),
-            aircraft: shared
-                .registry
-                .all_published()
-                .iter()
-                .map(|p| ReadsbAircraft::from_published(p, now))
-                .collect(),
+            aircraft: merged(
+                shared
+                    .registry
+                    .all_published()
+                    .iter()
+                    .map(|p| ReadsbAircraft::from_published(p, now)),
+                shared
+                    .registry
+                    .all_heard()
+                    .iter()
+                    .map(|(icao, f)| ReadsbAircraft::from_facts(*icao, f, now)),
+            ),
         })
     })
     .await

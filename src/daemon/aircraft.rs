@@ -631,6 +631,9 @@ fn publish(aircraft: &mut Aircraft, slot: &Slot, ctx: &TaskContext, counts: &mut
                     p.facts = aircraft.facts;
                     slot.store(Arc::new(p));
                 }
+            } else if slot.heard().is_none_or(|f| *f != aircraft.facts) {
+                // Never a position: listed by what it says about itself.
+                slot.store_heard(aircraft.facts);
             }
         }
     }
@@ -798,6 +801,42 @@ mod tests {
         assert_eq!(named.estimate, first.estimate);
         assert_eq!(named.facts.messages, 12);
         assert_eq!(named.facts.callsign, Some(callsign));
+    }
+
+    /// An aircraft heard before any position is listed by what it says (`SlotCell::heard`);
+    /// its first snapshot replaces that.
+    #[test]
+    fn an_aircraft_without_a_position_is_heard_until_its_first_snapshot() {
+        use crate::sim::encode::identification;
+        let cfg = config(crate::daemon::build_tracker);
+        let mut ac = Aircraft::new(ICAO, &cfg);
+        let mut counts = Counts::default();
+        let mut dec = decoder();
+        let ctx = TaskContext {
+            registry: Arc::new(Registry::default()),
+            stats: Arc::new(Stats::new()),
+            updates: None,
+            feed: Arc::new(crate::output::UpdateFeed::default()),
+            shutdown: tokio_util::sync::CancellationToken::new(),
+            prediction_horizons_s: Vec::new(),
+        };
+        let slot = Slot::default();
+        let callsign = crate::decode::Callsign(*b"KLM1023 ");
+        let id = RawFrame::new(99.0, &identification(ICAO, 3, &callsign), None)
+            .and_then(|f| dec.decode(&f).ok())
+            .unwrap_or_else(|| panic!("a frame"));
+        ac.handle(&id, &mut counts);
+        publish(&mut ac, &slot, &ctx, &mut counts);
+        assert!(slot.load().is_none());
+        let heard = slot.heard().unwrap_or_else(|| panic!("heard"));
+        assert_eq!((heard.callsign, heard.messages), (Some(callsign), 1));
+        for d in positions(&mut dec, 100.0, 48.0, 2.0, 4) {
+            ac.handle(&d, &mut counts);
+        }
+        publish(&mut ac, &slot, &ctx, &mut counts);
+        let p = slot.load().unwrap_or_else(|| panic!("a snapshot"));
+        assert_eq!((p.facts.callsign, p.facts.messages), (Some(callsign), 5));
+        assert!(slot.heard().is_none());
     }
 
     #[test]

@@ -260,8 +260,8 @@ impl Published {
             divergence_events: est.divergence_events,
             mode_probabilities: est.mode_probabilities.into(),
             callsign: facts.callsign.map(|c| c.as_str().to_string()),
-            squawk: facts.squawk.map(|s| format!("{s:04o}")),
-            category: facts.category.map(|(set, cat)| category_label(set, cat)),
+            squawk: facts.squawk_octal(),
+            category: facts.category_label(),
             ground_speed_mps: ve.hypot(vn),
             track_deg,
             vertical_rate_mps: vu,
@@ -296,16 +296,25 @@ impl Published {
     }
 }
 
-/// "A3"-style emitter category: set A-D from the type code (4..1), category number.
-fn category_label(type_code: u8, category: u8) -> String {
-    let set = match type_code {
-        4 => 'A',
-        3 => 'B',
-        2 => 'C',
-        1 => 'D',
-        _ => '?',
-    };
-    format!("{set}{category}")
+impl AircraftFacts {
+    /// The Mode A code as four octal digits, e.g. "7700".
+    pub fn squawk_octal(&self) -> Option<String> {
+        self.squawk.map(|s| format!("{s:04o}"))
+    }
+
+    /// The "A3"-style emitter category: set A-D from the identification's type code
+    /// (4..1), then the category number.
+    pub fn category_label(&self) -> Option<String> {
+        let (type_code, category) = self.category?;
+        let set = match type_code {
+            4 => 'A',
+            3 => 'B',
+            2 => 'C',
+            1 => 'D',
+            _ => '?',
+        };
+        Some(format!("{set}{category}"))
+    }
 }
 
 /// One aircraft's place in the registry: its newest [`Published`], which its task swaps in,
@@ -313,6 +322,10 @@ fn category_label(type_code: u8, category: u8) -> String {
 #[derive(Debug, Default)]
 pub struct SlotCell {
     snapshot: ArcSwapOption<Published>,
+    /// What the aircraft said about itself while it has no snapshot (no position decoded
+    /// yet, or none ever: a Mode S reply, an identification). readsb lists such aircraft,
+    /// without a position, and so does `aircraft.json`. Dropped once a snapshot exists.
+    heard: ArcSwapOption<AircraftFacts>,
     /// The recent positions (`[history]`). A std lock, held only to add a point (once per
     /// batch at most) or to copy the points out, never across an `.await`.
     trail: Mutex<Trail>,
@@ -322,6 +335,19 @@ impl SlotCell {
     /// Publishes a snapshot.
     pub fn store(&self, p: Arc<Published>) {
         self.snapshot.store(Some(p));
+        if self.heard.load().is_some() {
+            self.heard.store(None);
+        }
+    }
+
+    /// Publishes what an aircraft without a snapshot said about itself.
+    pub fn store_heard(&self, facts: AircraftFacts) {
+        self.heard.store(Some(Arc::new(facts)));
+    }
+
+    /// What the aircraft said about itself, while it has no snapshot.
+    pub fn heard(&self) -> Option<Arc<AircraftFacts>> {
+        self.heard.load_full()
     }
 
     /// Adds an estimated position to the trail (kept if due: see [`Trail::push`]).
@@ -455,6 +481,19 @@ impl Registry {
             .filter_map(|s| s.load())
             .collect();
         v.sort_by_key(|t| t.icao);
+        v
+    }
+
+    /// The aircraft heard without a snapshot yet ([`SlotCell::heard`]), sorted by address.
+    pub fn all_heard(&self) -> Vec<(Icao, Arc<AircraftFacts>)> {
+        let mut v: Vec<(Icao, Arc<AircraftFacts>)> = self
+            .slots
+            .load()
+            .iter()
+            .filter(|(_, s)| s.load().is_none())
+            .filter_map(|(icao, s)| Some((*icao, s.heard()?)))
+            .collect();
+        v.sort_by_key(|(icao, _)| *icao);
         v
     }
 

@@ -717,6 +717,25 @@ mod tests {
         })
     }
 
+    /// What `publish` needs of a task's context: nothing listening.
+    fn context() -> TaskContext {
+        TaskContext {
+            registry: Arc::new(Registry::default()),
+            stats: Arc::new(Stats::new()),
+            updates: None,
+            feed: Arc::new(crate::output::UpdateFeed::default()),
+            shutdown: tokio_util::sync::CancellationToken::new(),
+            prediction_horizons_s: Vec::new(),
+        }
+    }
+
+    /// One frame's bytes at `t_s`, decoded.
+    fn frame(dec: &mut Decoder, t_s: f64, bytes: &[u8]) -> Decoded {
+        RawFrame::new(t_s, bytes, None)
+            .and_then(|f| dec.decode(&f).ok())
+            .unwrap_or_else(|| panic!("a frame"))
+    }
+
     #[test]
     fn non_finite_estimate_resets_the_track_instead_of_being_published() {
         let cfg = config(|_| Box::new(poisoned()));
@@ -756,14 +775,7 @@ mod tests {
         let mut ac = Aircraft::new(ICAO, &cfg);
         let mut counts = Counts::default();
         let mut dec = decoder();
-        let ctx = TaskContext {
-            registry: Arc::new(Registry::default()),
-            stats: Arc::new(Stats::new()),
-            updates: None,
-            feed: Arc::new(crate::output::UpdateFeed::default()),
-            shutdown: tokio_util::sync::CancellationToken::new(),
-            prediction_horizons_s: Vec::new(),
-        };
+        let ctx = context();
         let slot = Slot::default();
         let mut one = |ac: &mut Aircraft, d: &[Decoded]| {
             for d in d {
@@ -785,19 +797,14 @@ mod tests {
                 nac_v: 2,
             },
         );
-        let late = |t_s: f64, bytes: &[u8], dec: &mut Decoder| {
-            RawFrame::new(t_s, bytes, None)
-                .and_then(|f| dec.decode(&f).ok())
-                .unwrap_or_else(|| panic!("a frame"))
-        };
-        let ended = one(&mut ac, &[late(300.0, &velocity, &mut dec)]);
+        let ended = one(&mut ac, &[frame(&mut dec, 300.0, &velocity)]);
         assert!(ac.tracker.estimate().is_none());
         assert_eq!(ended.estimate, first.estimate);
         assert_eq!(ended.facts.messages, 11);
         // Then only its identification: the same estimate, the new facts.
         let callsign = crate::decode::Callsign(*b"AFR34ZG ");
         let id = identification(ICAO, 3, &callsign);
-        let named = one(&mut ac, &[late(301.0, &id, &mut dec)]);
+        let named = one(&mut ac, &[frame(&mut dec, 301.0, &id)]);
         assert_eq!(named.estimate, first.estimate);
         assert_eq!(named.facts.messages, 12);
         assert_eq!(named.facts.callsign, Some(callsign));
@@ -812,20 +819,13 @@ mod tests {
         let mut ac = Aircraft::new(ICAO, &cfg);
         let mut counts = Counts::default();
         let mut dec = decoder();
-        let ctx = TaskContext {
-            registry: Arc::new(Registry::default()),
-            stats: Arc::new(Stats::new()),
-            updates: None,
-            feed: Arc::new(crate::output::UpdateFeed::default()),
-            shutdown: tokio_util::sync::CancellationToken::new(),
-            prediction_horizons_s: Vec::new(),
-        };
+        let ctx = context();
         let slot = Slot::default();
         let callsign = crate::decode::Callsign(*b"KLM1023 ");
-        let id = RawFrame::new(99.0, &identification(ICAO, 3, &callsign), None)
-            .and_then(|f| dec.decode(&f).ok())
-            .unwrap_or_else(|| panic!("a frame"));
-        ac.handle(&id, &mut counts);
+        ac.handle(
+            &frame(&mut dec, 99.0, &identification(ICAO, 3, &callsign)),
+            &mut counts,
+        );
         publish(&mut ac, &slot, &ctx, &mut counts);
         assert!(slot.load().is_none());
         let heard = slot.heard().unwrap_or_else(|| panic!("heard"));

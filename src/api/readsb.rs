@@ -19,7 +19,7 @@
 //! to binary formats. `history` is 0: tar1090 asks for no `history_N.json`.
 
 use super::{ApiError, ApiState};
-use crate::daemon::registry::{AircraftFacts, Published};
+use crate::daemon::registry::{AircraftFacts, Listed, Published};
 use crate::decode::Icao;
 use axum::body::Bytes;
 use axum::extract::State;
@@ -261,17 +261,6 @@ fn round(x: f64, places: i32) -> f64 {
     (x * k).round() / k
 }
 
-/// The aircraft with a position and those without, merged in address order (each list is
-/// sorted by address already).
-fn merged(
-    with: impl Iterator<Item = ReadsbAircraft>,
-    without: impl Iterator<Item = ReadsbAircraft>,
-) -> Vec<ReadsbAircraft> {
-    let mut all: Vec<ReadsbAircraft> = with.chain(without).collect();
-    all.sort_by(|a, b| a.hex.cmp(&b.hex));
-    all
-}
-
 /// readsb's answers are never cached: tar1090 polls them.
 fn no_cache<T: Serialize>(body: T) -> Response {
     (
@@ -294,18 +283,15 @@ pub(super) async fn aircraft(State(api): State<ApiState>) -> Result<Response, Ap
         serde_json::to_vec(&AircraftJson {
             now,
             messages: shared.stats.frames_in.get(),
-            aircraft: merged(
-                shared
-                    .registry
-                    .all_published()
-                    .iter()
-                    .map(|p| ReadsbAircraft::from_published(p, now)),
-                shared
-                    .registry
-                    .all_heard()
-                    .iter()
-                    .map(|(icao, f)| ReadsbAircraft::from_facts(*icao, f, now)),
-            ),
+            aircraft: shared
+                .registry
+                .all_listed()
+                .iter()
+                .map(|l| match l {
+                    Listed::Tracked(p) => ReadsbAircraft::from_published(p, now),
+                    Listed::Heard(icao, f) => ReadsbAircraft::from_facts(*icao, f, now),
+                })
+                .collect(),
         })
     })
     .await

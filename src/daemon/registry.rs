@@ -317,6 +317,15 @@ impl AircraftFacts {
     }
 }
 
+/// An aircraft as [`Registry::all_listed`] gives it.
+#[derive(Clone, Debug)]
+pub enum Listed {
+    /// It has a snapshot.
+    Tracked(Arc<Published>),
+    /// Heard, no snapshot yet: its address and what it said about itself.
+    Heard(Icao, Arc<AircraftFacts>),
+}
+
 /// One aircraft's place in the registry: its newest [`Published`], which its task swaps in,
 /// and its trail.
 #[derive(Debug, Default)]
@@ -484,16 +493,24 @@ impl Registry {
         v
     }
 
-    /// The aircraft heard without a snapshot yet ([`SlotCell::heard`]), sorted by address.
-    pub fn all_heard(&self) -> Vec<(Icao, Arc<AircraftFacts>)> {
-        let mut v: Vec<(Icao, Arc<AircraftFacts>)> = self
+    /// Every aircraft with something to show, sorted by address: its snapshot, or what it
+    /// said about itself while it has none ([`SlotCell::heard`]). One pass over one
+    /// version of the map, so an aircraft whose first snapshot lands meanwhile is listed
+    /// once.
+    pub fn all_listed(&self) -> Vec<Listed> {
+        let mut v: Vec<Listed> = self
             .slots
             .load()
             .iter()
-            .filter(|(_, s)| s.load().is_none())
-            .filter_map(|(icao, s)| Some((*icao, s.heard()?)))
+            .filter_map(|(icao, s)| match s.load() {
+                Some(p) => Some(Listed::Tracked(p)),
+                None => s.heard().map(|f| Listed::Heard(*icao, f)),
+            })
             .collect();
-        v.sort_by_key(|(icao, _)| *icao);
+        v.sort_by_key(|l| match l {
+            Listed::Tracked(p) => p.icao,
+            Listed::Heard(icao, _) => *icao,
+        });
         v
     }
 

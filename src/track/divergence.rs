@@ -103,9 +103,19 @@ impl<const N: usize> Prediction<N> {
         dt_s: f64,
     ) -> Self {
         let (f, q) = model.fq(dt_s);
+        Self::from_fq(&f, q, x, p)
+    }
+
+    /// Predicts `(x, p)` with the transition `f` and the process noise `q` of one step.
+    pub fn from_fq(
+        f: &SMatrix<f64, N, N>,
+        q: SMatrix<f64, N, N>,
+        x: &SVector<f64, N>,
+        p: &SMatrix<f64, N, N>,
+    ) -> Self {
         Self {
             x: f * x,
-            fpf: kalman::sparse_fpf(&f, p),
+            fpf: kalman::sparse_fpf(f, p),
             q,
         }
     }

@@ -22,13 +22,13 @@
 
 use super::divergence::{guarded_update, DivergenceParams, Observation, Prediction};
 use super::kalman::{self, MotionModel};
-use super::models::{Ca, Ch, Chca, Ct, Cv, Matrix9, Model, State9, ACC, POS, VEL};
+use super::models::{Ca, Ch, Chca, Ct, Cv, Matrix9, Model, ResetTail, State9, ACC, POS, VEL};
 use super::noise::{local_up, BlockStat, NoiseLearner, NoiseParams};
 use super::{
     Estimate, FlightMode, Lateral, Measurement, Observed, SpeedTrend, TrackError, Tracker,
     TurnDirection, VerticalTrend,
 };
-use nalgebra::{Matrix3, Vector3};
+use nalgebra::{Matrix3, SMatrix, SVector, Vector3};
 
 /// Number of IMM modes ([`ImmMode::ALL`]).
 pub const N_MODES: usize = 6;
@@ -230,16 +230,22 @@ fn unpack(packed: &Packed9) -> Matrix9 {
 /// stored as its upper triangle ([`Packed9`]), and so is d dᵀ (dᵣ d꜀ = d꜀ dᵣ in floating
 /// point): the sum is accumulated over the upper triangle alone and mirrored, the same
 /// result with 45 entries instead of 81.
-fn spread_sum(
+///
+/// Over the leading K states alone (K ≤ 9; their block of the packed Pᵢ is its first
+/// K(K+1)/2 entries): what a mode whose model resets the rest needs ([`ResetTail`]).
+fn spread_sum<const K: usize>(
     x: &[State9; N_MODES],
     p: &[Packed9; N_MODES],
     w: &[f64; N_MODES],
-    mean: &State9,
-) -> Matrix9 {
+    mean: &SVector<f64, K>,
+) -> SMatrix<f64, K, K> {
     let mut out = [0.0f64; PACKED9];
     for ((xi, pi), &wi) in x.iter().zip(p).zip(w) {
         if wi > 0.0 {
-            let d: [f64; 9] = (xi - mean).into();
+            let mut d = [0.0f64; K];
+            for ((dk, xk), mk) in d.iter_mut().zip(xi.iter()).zip(mean.iter()) {
+                *dk = xk - mk;
+            }
             for (c, dc) in d.iter().enumerate() {
                 let (Some(oc), Some(pc)) = (out.get_mut(packed_col(c)), pi.get(packed_col(c)))
                 else {
@@ -251,7 +257,167 @@ fn spread_sum(
             }
         }
     }
-    unpack(&out)
+    let mut m = SMatrix::<f64, K, K>::zeros();
+    for c in 0..K {
+        if let Some(col) = out.get(packed_col(c)) {
+            for (r, v) in col.iter().enumerate() {
+                m[(r, c)] = *v;
+                m[(c, r)] = *v;
+            }
+        }
+    }
+    m
+}
+
+/// Σᵢ wᵢ x̂ᵢ over the leading K states, the terms with wᵢ > 0.
+fn weighted_mean<const K: usize>(x: &[State9; N_MODES], w: &[f64; N_MODES]) -> SVector<f64, K> {
+    let mut mean = SVector::<f64, K>::zeros();
+    for (xi, &wi) in x.iter().zip(w) {
+        if wi > 0.0 {
+            for (m, xk) in mean.iter_mut().zip(xi.iter()) {
+                *m += xk * wi;
+            }
+        }
+    }
+    mean
+}
+
+/// Writes a K-state (x, P) as the 9-state one of a [`ResetTail`] model: the reset states
+/// at zero with variance `reset_var`, uncorrelated.
+fn embed<const K: usize>(
+    x: &SVector<f64, K>,
+    p: &SMatrix<f64, K, K>,
+    reset_var: f64,
+    x_out: &mut State9,
+    p_out: &mut Packed9,
+) {
+    for (i, o) in x_out.iter_mut().enumerate() {
+        *o = x.get(i).copied().unwrap_or(0.0);
+    }
+    for c in 0..9 {
+        if let Some(col) = p_out.get_mut(packed_col(c)) {
+            for (r, o) in col.iter_mut().enumerate() {
+                *o = if c < K {
+                    p.get((r, c)).copied().unwrap_or(0.0)
+                } else if r == c {
+                    reset_var
+                } else {
+                    0.0
+                };
+            }
+        }
+    }
+}
+
+/// What one mode's filter reports of a step besides its new state.
+struct ModeOutcome {
+    /// Consecutive divergence events (paper 000) up to this step.
+    run: u32,
+    /// NIS and log-likelihood of the nominal innovation.
+    nis: f64,
+    log_likelihood: f64,
+    /// The nominal innovation blocks, for [`super::noise`].
+    blocks: [BlockStat; 2],
+    /// Pⱼ(k|k−1) − Pⱼ(k|k) over the velocity block.
+    correction: Matrix3<f64>,
+}
+
+/// One mode's mixing, prediction and guarded update on the leading K states of its
+/// [`ResetTail`] model, written to `x_out`, `p_out` as 9-state: the same numbers as
+/// [`mode_step_full`] (tested) with the work of a K-state filter. On an update error the
+/// prediction is written and the error returned. A model whose reset variance is not
+/// positive (no 9-state covariance would then be positive definite) takes the 9-state path,
+/// which is what fails there.
+#[allow(
+    clippy::too_many_arguments,
+    reason = "one IMM mode's inputs, in one place"
+)]
+fn mode_step<const K: usize>(
+    model: &impl ResetTail<K>,
+    states: &ModeStates,
+    w: &[f64; N_MODES],
+    dt_s: f64,
+    obs: &Observation,
+    divergence: &DivergenceParams,
+    previous_run: u32,
+    x_out: &mut State9,
+    p_out: &mut Packed9,
+) -> Result<ModeOutcome, TrackError> {
+    let reset_var = model.reset_variance();
+    if !(reset_var > 0.0 && reset_var.is_finite()) {
+        return mode_step_full(
+            model,
+            states,
+            w,
+            dt_s,
+            obs,
+            divergence,
+            previous_run,
+            x_out,
+            p_out,
+        );
+    }
+    let x0 = weighted_mean::<K>(&states.x, w);
+    let p0 = spread_sum::<K>(&states.x, &states.p, w, &x0);
+    let (f, q) = model.leading_fq(dt_s);
+    let pred = Prediction::<K>::from_fq(&f, q, &x0, &p0);
+    match guarded_update(&pred, obs, divergence, previous_run) {
+        Ok(g) => {
+            embed(&g.x, &g.p, reset_var, x_out, p_out);
+            Ok(ModeOutcome {
+                run: g.run,
+                nis: g.nis,
+                log_likelihood: g.log_likelihood,
+                blocks: g.blocks,
+                correction: pred.covariance_block3(g.adapt, VEL)
+                    - kalman::block::<3, 3, K, K>(&g.p, VEL, VEL),
+            })
+        }
+        Err(e) => {
+            embed(&pred.x, &pred.covariance(1.0), reset_var, x_out, p_out);
+            Err(e)
+        }
+    }
+}
+
+/// [`mode_step`] in the full 9 states, for any model: the reference the reduced step is
+/// tested against.
+#[allow(
+    clippy::too_many_arguments,
+    reason = "one IMM mode's inputs, in one place"
+)]
+fn mode_step_full(
+    model: &dyn MotionModel<9>,
+    states: &ModeStates,
+    w: &[f64; N_MODES],
+    dt_s: f64,
+    obs: &Observation,
+    divergence: &DivergenceParams,
+    previous_run: u32,
+    x_out: &mut State9,
+    p_out: &mut Packed9,
+) -> Result<ModeOutcome, TrackError> {
+    let x0 = weighted_mean::<9>(&states.x, w);
+    let p0 = spread_sum::<9>(&states.x, &states.p, w, &x0);
+    let pred = Prediction::<9>::new(model, &x0, &p0, dt_s);
+    match guarded_update(&pred, obs, divergence, previous_run) {
+        Ok(g) => {
+            *x_out = g.x;
+            *p_out = pack(&g.p);
+            Ok(ModeOutcome {
+                run: g.run,
+                nis: g.nis,
+                log_likelihood: g.log_likelihood,
+                blocks: g.blocks,
+                correction: pred.covariance_block3(g.adapt, VEL) - g.p.fixed_view::<3, 3>(VEL, VEL),
+            })
+        }
+        Err(e) => {
+            *x_out = pred.x;
+            *p_out = pack(&pred.covariance(1.0));
+            Err(e)
+        }
+    }
 }
 
 /// Every mode's state and covariance (the covariances packed): 2.6 KB, the bulk of an
@@ -524,7 +690,8 @@ impl Imm {
         let mut cv_blocks = [BlockStat::default(); 2];
         let mut first_error = None;
         let mut any_ok = false;
-        for j in 0..N_MODES {
+        let divergence = &self.params.divergence;
+        for (j, (x_out, p_out)) in x_new.iter_mut().zip(p_new.iter_mut()).enumerate() {
             if !self.params.enabled[j] || c_bar[j] <= 0.0 {
                 continue;
             }
@@ -533,34 +700,39 @@ impl Imm {
             for ((wi, row), mu) in w.iter_mut().zip(&pi).zip(self.mu) {
                 *wi = row[j] * mu / c_bar[j];
             }
-            let mut x0 = State9::zeros();
-            for (xi, wi) in states.x.iter().zip(w) {
-                if wi > 0.0 {
-                    x0 += xi * wi;
+            // Mode-matched, divergence-guarded filtering, on the states the model keeps.
+            let run = self.divergence_runs[j];
+            let outcome = match &self.models[j] {
+                Model::Cv(m) => {
+                    mode_step::<6>(m, states, &w, dt_s, obs, divergence, run, x_out, p_out)
                 }
-            }
-            let p0 = spread_sum(&states.x, &states.p, &w, &x0);
-            // Mode-matched, divergence-guarded filtering.
-            let pred = Prediction::<9>::new(self.models[j].as_dyn(), &x0, &p0, dt_s);
-            match guarded_update(&pred, obs, &self.params.divergence, self.divergence_runs[j]) {
-                Ok(g) => {
+                Model::Ct(m) => {
+                    mode_step::<6>(m, states, &w, dt_s, obs, divergence, run, x_out, p_out)
+                }
+                Model::Ch(m) => {
+                    mode_step::<6>(m, states, &w, dt_s, obs, divergence, run, x_out, p_out)
+                }
+                Model::Ca(m) => {
+                    mode_step::<8>(m, states, &w, dt_s, obs, divergence, run, x_out, p_out)
+                }
+                Model::Chca(m) => {
+                    mode_step::<8>(m, states, &w, dt_s, obs, divergence, run, x_out, p_out)
+                }
+            };
+            match outcome {
+                Ok(o) => {
                     any_ok = true;
-                    x_new[j] = g.x;
-                    p_new[j] = pack(&g.p);
-                    runs[j] = g.run;
-                    nis[j] = g.nis;
+                    runs[j] = o.run;
+                    nis[j] = o.nis;
                     if j == ImmMode::Cv.index() {
-                        cv_blocks = g.blocks;
+                        cv_blocks = o.blocks;
                     }
-                    corrections[j] =
-                        pred.covariance_block3(g.adapt, VEL) - g.p.fixed_view::<3, 3>(VEL, VEL);
-                    if g.log_likelihood.is_finite() {
-                        log_post[j] = c_bar[j].ln() + g.log_likelihood;
+                    corrections[j] = o.correction;
+                    if o.log_likelihood.is_finite() {
+                        log_post[j] = c_bar[j].ln() + o.log_likelihood;
                     }
                 }
                 Err(e) => {
-                    x_new[j] = pred.x;
-                    p_new[j] = pack(&pred.covariance(1.0));
                     if first_error.is_none() {
                         first_error = Some(e);
                     }
@@ -604,7 +776,7 @@ impl Imm {
         // Σ μⱼ [Pⱼ + dⱼ dⱼᵀ] is symmetric by construction (each Pⱼ is): symmetrising it
         // changes nothing.
         let states = self.states();
-        (x, spread_sum(&states.x, &states.p, &self.mu, &x))
+        (x, spread_sum::<9>(&states.x, &states.p, &self.mu, &x))
     }
 
     /// The combined estimate x̂ = Σ μⱼ x̂ⱼ alone (no covariance: a tenth of the work).
@@ -1077,6 +1249,133 @@ impl Tracker for ImmTracker {
 mod tests {
     use super::*;
     use crate::track::UNMEASURED_VARIANCE;
+
+    /// Each mode's step on its model's leading states ([`mode_step`]) is bit for bit the
+    /// 9-state one ([`mode_step_full`]): state, covariance, NIS, likelihood, divergence run
+    /// and velocity correction, on random mixtures, steps and reports, including reports far
+    /// enough off to diverge and be suppressed, and velocity reports without a vertical rate.
+    #[test]
+    fn the_reduced_mode_step_is_the_9_state_step() {
+        use rand::rngs::StdRng;
+        use rand::{Rng, SeedableRng};
+        let mut rng = StdRng::seed_from_u64(23);
+        let mut suppressed = 0;
+        let mut errors = 0;
+        for case in 0..3000 {
+            // Mode states as an IMM holds them: the reset tails at (0, σ_r²) for some modes,
+            // anything for others, each covariance symmetric positive definite.
+            let states = ModeStates {
+                x: std::array::from_fn(|i| {
+                    State9::from_fn(|k, _| {
+                        let scale = [3e4, 3e4, 3e3, 250.0, 250.0, 20.0, 2.0, 2.0, 1.0][k];
+                        if i % 2 == 0 && k >= ACC {
+                            0.0
+                        } else {
+                            rng.gen_range(-scale..scale)
+                        }
+                    })
+                }),
+                p: std::array::from_fn(|_| {
+                    let l = Matrix9::from_fn(|i, j| {
+                        if i >= j {
+                            rng.gen_range(-3.0..3.0)
+                        } else {
+                            0.0
+                        }
+                    });
+                    pack(&kalman::symmetrise(
+                        &(l * l.transpose() + Matrix9::identity()),
+                    ))
+                }),
+            };
+            let mut w: [f64; N_MODES] = std::array::from_fn(|_| rng.gen_range(0.0..1.0));
+            w[rng.gen_range(0..N_MODES)] = 0.0;
+            let total: f64 = w.iter().sum();
+            w.iter_mut().for_each(|v| *v /= total);
+            let dt_s = [0.0, 0.1, 0.5, 1.0, 2.7, 12.0][case % 6];
+            let off = if case % 5 == 0 { 400.0 } else { 20.0 };
+            let position = Observed {
+                value: Vector3::from_fn(|_, _| rng.gen_range(-3e4..3e4)),
+                cov: Matrix3::from_diagonal(&Vector3::new(25.0, 25.0, 100.0)),
+            };
+            let mut velocity = Observed {
+                value: Vector3::from_fn(|_, _| rng.gen_range(-off..off)),
+                cov: Matrix3::from_diagonal(&Vector3::new(0.3, 0.3, 1.0)),
+            };
+            if case % 3 == 0 {
+                velocity.cov[(2, 2)] = UNMEASURED_VARIANCE;
+            }
+            let obs = match case % 4 {
+                0 => Observation::Position(position),
+                1 => Observation::Velocity(velocity),
+                _ => Observation::Both(position, velocity),
+            };
+            let run = [0, 3, 4][case % 3];
+            let mut models = ModelSet::default().models();
+            let omega = rng.gen_range(-0.2..0.2);
+            for m in models.iter_mut() {
+                if let Model::Ct(ct) = m {
+                    ct.omega_rad_s = omega;
+                }
+            }
+            let divergence = DivergenceParams::default();
+            for model in &models {
+                let (mut x_r, mut p_r) = (State9::zeros(), [0.0; PACKED9]);
+                let (mut x_f, mut p_f) = (State9::zeros(), [0.0; PACKED9]);
+                let args = (&states, &w, dt_s, &obs, &divergence, run);
+                let reduced = match model {
+                    Model::Cv(m) => mode_step::<6>(
+                        m, args.0, args.1, args.2, args.3, args.4, args.5, &mut x_r, &mut p_r,
+                    ),
+                    Model::Ct(m) => mode_step::<6>(
+                        m, args.0, args.1, args.2, args.3, args.4, args.5, &mut x_r, &mut p_r,
+                    ),
+                    Model::Ch(m) => mode_step::<6>(
+                        m, args.0, args.1, args.2, args.3, args.4, args.5, &mut x_r, &mut p_r,
+                    ),
+                    Model::Ca(m) => mode_step::<8>(
+                        m, args.0, args.1, args.2, args.3, args.4, args.5, &mut x_r, &mut p_r,
+                    ),
+                    Model::Chca(m) => mode_step::<8>(
+                        m, args.0, args.1, args.2, args.3, args.4, args.5, &mut x_r, &mut p_r,
+                    ),
+                };
+                let full = mode_step_full(
+                    model.as_dyn(),
+                    &states,
+                    &w,
+                    dt_s,
+                    &obs,
+                    &divergence,
+                    run,
+                    &mut x_f,
+                    &mut p_f,
+                );
+                // -0.0 and 0.0 are one value to every later operation.
+                assert!(x_r == x_f, "case {case} {model:?}: {x_r} vs {x_f}");
+                assert!(p_r == p_f, "case {case} {model:?}: covariance");
+                match (reduced, full) {
+                    (Ok(r), Ok(f)) => {
+                        assert_eq!(
+                            (r.run, r.blocks, r.correction),
+                            (f.run, f.blocks, f.correction),
+                            "case {case}"
+                        );
+                        assert!(r.nis == f.nis || (r.nis.is_nan() && f.nis.is_nan()));
+                        assert_eq!(r.log_likelihood, f.log_likelihood);
+                        suppressed += u32::from(r.run >= divergence.confirm);
+                    }
+                    (Err(r), Err(f)) => {
+                        assert_eq!(r, f);
+                        errors += 1;
+                    }
+                    (r, f) => panic!("case {case}: {:?} vs {:?}", r.is_ok(), f.is_ok()),
+                }
+            }
+        }
+        // The suppressed path was exercised.
+        assert!(suppressed > 100, "{suppressed} suppressed, {errors} errors");
+    }
 
     /// The triangular in-place spread sum is bit for bit the full matrix sum it replaced
     /// (for the exactly symmetric covariances the estimator holds).

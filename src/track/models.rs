@@ -65,7 +65,13 @@ fn cv_axis<const N: usize>(
 /// density qj; Bar-Shalom et al. §6.2.3; paper 002 eq. 2 for F):
 /// F = [[1, T, T²/2], [0, 1, T], [0, 0, 1]],
 /// Q = qj [[T⁵/20, T⁴/8, T³/6], [T⁴/8, T³/3, T²/2], [T³/6, T²/2, T]].
-fn ca_axis(f: &mut Matrix9, q: &mut Matrix9, axis: usize, dt_s: f64, qj: f64) {
+fn ca_axis<const N: usize>(
+    f: &mut SMatrix<f64, N, N>,
+    q: &mut SMatrix<f64, N, N>,
+    axis: usize,
+    dt_s: f64,
+    qj: f64,
+) {
     let (p, v, a) = (POS + axis, VEL + axis, ACC + axis);
     let t = dt_s;
     let (t2, t3) = (t * t, t * t * t);
@@ -200,12 +206,23 @@ impl Default for Ca {
     }
 }
 
-fn ca_with_vertical_cv(dt_s: f64, qj: f64, q_v: f64, sigma_r: f64) -> (Matrix9, Matrix9) {
-    let mut f = Matrix9::identity();
-    let mut q = Matrix9::zeros();
+/// Horizontal CA and vertical CWNA over the leading N ≥ 8 states (the vertical acceleration,
+/// state 8, not included when N = 8).
+fn ca_level<const N: usize>(
+    dt_s: f64,
+    qj: f64,
+    q_v: f64,
+) -> (SMatrix<f64, N, N>, SMatrix<f64, N, N>) {
+    let mut f = SMatrix::<f64, N, N>::identity();
+    let mut q = SMatrix::<f64, N, N>::zeros();
     ca_axis(&mut f, &mut q, 0, dt_s, qj);
     ca_axis(&mut f, &mut q, 1, dt_s, qj);
     cv_axis(&mut f, &mut q, 2, dt_s, q_v);
+    (f, q)
+}
+
+fn ca_with_vertical_cv(dt_s: f64, qj: f64, q_v: f64, sigma_r: f64) -> (Matrix9, Matrix9) {
+    let (mut f, mut q) = ca_level::<9>(dt_s, qj, q_v);
     reset_acc_axis(&mut f, &mut q, 2, sigma_r);
     (f, q)
 }
@@ -375,11 +392,17 @@ pub fn ct_coefficients(omega_rad_s: f64, dt_s: f64) -> CtCoefficients {
 }
 
 fn ct_fq(m: &Ct, dt_s: f64) -> (Matrix9, Matrix9) {
-    let (mut f, mut q) = cv3d_reset(
-        dt_s,
-        [m.q_h_m2ps3, m.q_h_m2ps3, m.q_v_m2ps3],
-        m.acc_reset_sigma_mps2,
-    );
+    let (mut f, mut q) = ct_pos_vel::<9>(m, dt_s);
+    for axis in 0..3 {
+        reset_acc_axis(&mut f, &mut q, axis, m.acc_reset_sigma_mps2);
+    }
+    (f, q)
+}
+
+/// The CT model's F and Q over the leading N ≥ 6 states (position and velocity; the
+/// acceleration states, when N = 9, left at the identity and zero).
+fn ct_pos_vel<const N: usize>(m: &Ct, dt_s: f64) -> (SMatrix<f64, N, N>, SMatrix<f64, N, N>) {
+    let (mut f, mut q) = cv3d::<N>(dt_s, [m.q_h_m2ps3, m.q_h_m2ps3, m.q_v_m2ps3]);
     let k = ct_coefficients(m.omega_rad_s, dt_s);
     let (e, n, ve, vn) = (POS, POS + 1, VEL, VEL + 1);
     f[(e, ve)] = k.sin_over_w;
@@ -546,6 +569,69 @@ impl Model {
             Model::Ch(m) => m,
             Model::Chca(m) => m,
         }
+    }
+}
+
+/// A 9-state model that resets its states from `K` on at every step: F's rows and columns
+/// there are zero and Q gives each of them σ_r² and nothing else.
+///
+/// Such a state leaves every prediction as (0, σ_r²) whatever it held, uncorrelated with the
+/// rest, and a position or velocity report does not see it, so the update leaves it there.
+/// The leading K states can therefore be predicted and updated alone: the same numbers as
+/// the 9-state step, a fraction of the work. The IMM's CV, CT and CH models are 6-state
+/// filters in disguise, its CA and CHCA models 8-state ones.
+pub trait ResetTail<const K: usize>: MotionModel<9> {
+    /// The leading K×K blocks of F(dt) and Q(dt) (tested against `fq`).
+    fn leading_fq(&self, dt_s: f64) -> (SMatrix<f64, K, K>, SMatrix<f64, K, K>);
+    /// σ_r², the variance each reset state is given, (m/s²)².
+    fn reset_variance(&self) -> f64;
+}
+
+impl ResetTail<6> for Cv {
+    fn leading_fq(&self, dt_s: f64) -> (Matrix6, Matrix6) {
+        cv3d::<6>(dt_s, self.densities())
+    }
+    fn reset_variance(&self) -> f64 {
+        self.acc_reset_sigma_mps2 * self.acc_reset_sigma_mps2
+    }
+}
+
+impl ResetTail<6> for Ct {
+    fn leading_fq(&self, dt_s: f64) -> (Matrix6, Matrix6) {
+        ct_pos_vel::<6>(self, dt_s)
+    }
+    fn reset_variance(&self) -> f64 {
+        self.acc_reset_sigma_mps2 * self.acc_reset_sigma_mps2
+    }
+}
+
+impl ResetTail<6> for Ch {
+    fn leading_fq(&self, dt_s: f64) -> (Matrix6, Matrix6) {
+        cv3d::<6>(dt_s, [self.q_h_m2ps3, self.q_h_m2ps3, self.q_v_m2ps3])
+    }
+    fn reset_variance(&self) -> f64 {
+        self.acc_reset_sigma_mps2 * self.acc_reset_sigma_mps2
+    }
+}
+
+/// The 8-state leading block of a model with horizontal acceleration.
+pub type Matrix8 = SMatrix<f64, 8, 8>;
+
+impl ResetTail<8> for Ca {
+    fn leading_fq(&self, dt_s: f64) -> (Matrix8, Matrix8) {
+        ca_level::<8>(dt_s, self.jerk_q_h_m2ps5, self.q_v_m2ps3)
+    }
+    fn reset_variance(&self) -> f64 {
+        self.acc_reset_sigma_mps2 * self.acc_reset_sigma_mps2
+    }
+}
+
+impl ResetTail<8> for Chca {
+    fn leading_fq(&self, dt_s: f64) -> (Matrix8, Matrix8) {
+        ca_level::<8>(dt_s, self.jerk_q_h_m2ps5, self.q_v_m2ps3)
+    }
+    fn reset_variance(&self) -> f64 {
+        self.acc_reset_sigma_mps2 * self.acc_reset_sigma_mps2
     }
 }
 
@@ -875,5 +961,39 @@ mod tests {
                 (MotionModel::<6>::f(&cv, dt), MotionModel::<6>::q(&cv, dt))
             );
         }
+    }
+
+    /// What [`ResetTail`] claims of a model, checked on its 9-state F and Q: they are the
+    /// K-state ones bordered by zeros, with σ_r² on Q's diagonal from K on.
+    fn assert_reset_tail<const K: usize>(model: &impl ResetTail<K>) {
+        let var = model.reset_variance();
+        assert!(var > 0.0);
+        for dt in [0.0, 0.05, 0.5, 1.0, 4.2, 30.0] {
+            let (f9, q9) = MotionModel::<9>::fq(model, dt);
+            let (fk, qk) = model.leading_fq(dt);
+            for i in 0..9 {
+                for j in 0..9 {
+                    let (f, q) = if i < K && j < K {
+                        (fk[(i, j)], qk[(i, j)])
+                    } else if i == j {
+                        (0.0, var)
+                    } else {
+                        (0.0, 0.0)
+                    };
+                    assert_eq!((f9[(i, j)], q9[(i, j)]), (f, q), "({i}, {j}) at dt {dt}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn the_imm_models_are_their_leading_blocks_and_a_reset_tail() {
+        assert_reset_tail::<6>(&Cv::default());
+        assert_reset_tail::<6>(&Ct::default());
+        assert_reset_tail::<6>(&Ct::turning(false, 0.01));
+        assert_reset_tail::<6>(&Ct::turning(true, 1e-9));
+        assert_reset_tail::<6>(&Ch::default());
+        assert_reset_tail::<8>(&Ca::default());
+        assert_reset_tail::<8>(&Chca::default());
     }
 }

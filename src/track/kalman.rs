@@ -135,6 +135,19 @@ const SUPPORT9: [&[usize]; 9] = [
     &[8],
 ];
 
+/// [`SUPPORT9`] without the vertical acceleration (state 8): the leading 8 states of the
+/// models with horizontal acceleration ([`super::models::ResetTail`]). 18 entries of 64.
+const SUPPORT8: [&[usize]; 8] = [
+    &[0, 3, 4, 6],
+    &[1, 3, 4, 7],
+    &[2, 5],
+    &[3, 4, 6],
+    &[3, 4, 7],
+    &[5],
+    &[6],
+    &[7],
+];
+
 /// Whether every non-zero of `f` lies in `support` (one row slice per row).
 fn within_support<const N: usize>(f: &SMatrix<f64, N, N>, support: &[&[usize]]) -> bool {
     support.len() == N
@@ -183,11 +196,14 @@ fn fpf_on_support<const N: usize>(
 /// the terms of a superset of F's non-zeros, k still ascending, therefore gives the same
 /// floating-point result with nnz·N instead of N³ multiplications per product (tested
 /// bit-equal): the motion models' fixed pattern ([`SUPPORT9`]) when F fits it, else the
-/// non-zeros found in F. Below 9x9 the dense product is used (faster there, same result).
+/// non-zeros found in F. Below 8x8 the dense product is used (faster there, same result).
 pub fn sparse_fpf<const N: usize>(
     f: &SMatrix<f64, N, N>,
     p: &SMatrix<f64, N, N>,
 ) -> SMatrix<f64, N, N> {
+    if N == 8 && within_support(f, &SUPPORT8) {
+        return fpf_on_support(f, p, &SUPPORT8);
+    }
     if N < 9 {
         // Up to 6x6 the dense product, fully unrolled and vectorised, is the faster.
         return f * p * f.transpose();
@@ -404,7 +420,29 @@ pub fn update_selected<const N: usize, const M: usize>(
     }
     // A (I − KH)ᵀ = A − A[:, sel] Kᵀ, column j = Σₖ A[:, k] (I − KH)[j, k] over the non-zeros
     // of row j (the columns sel, and j), then + K R Kᵀ.
-    let mut p_new = k * r * k.transpose();
+    // K R Kᵀ by loops in the dense products' order (K R first, then its product with Kᵀ,
+    // each entry summed over the inner index ascending): the same numbers without
+    // nalgebra's generic product, which is not inlined here.
+    let mut kr = [[0.0f64; M]; N];
+    for (i, row) in kr.iter_mut().enumerate() {
+        for (l, out) in row.iter_mut().enumerate() {
+            let mut acc = 0.0;
+            for m in 0..M {
+                acc += k[(i, m)] * r[(m, l)];
+            }
+            *out = acc;
+        }
+    }
+    let mut p_new = SMatrix::<f64, N, N>::zeros();
+    for j in 0..N {
+        for (i, row) in kr.iter().enumerate() {
+            let mut acc = 0.0;
+            for (l, v) in row.iter().enumerate() {
+                acc += v * k[(j, l)];
+            }
+            p_new[(i, j)] = acc;
+        }
+    }
     for j in 0..N {
         let mut col = [0.0; N];
         for (kk, &m) in slot.iter().enumerate() {
@@ -616,6 +654,12 @@ mod tests {
             let p6 = random_spd::<6>(&mut rng, 3.0);
             let f6 = MotionModel::<6>::f(&Cv::default(), dt);
             prop_assert_eq!(sparse_fpf(&f6, &p6), f6 * p6 * f6.transpose());
+            // The 8-state leading blocks of the models with horizontal acceleration.
+            use crate::track::models::ResetTail;
+            let p8 = random_spd::<8>(&mut rng, 3.0);
+            for f8 in [Ca::default().leading_fq(dt).0, Chca::default().leading_fq(dt).0] {
+                prop_assert_eq!(sparse_fpf(&f8, &p8), f8 * p8 * f8.transpose());
+            }
         }
 
         #[test]

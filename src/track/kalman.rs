@@ -421,26 +421,25 @@ pub fn update_selected<const N: usize, const M: usize>(
     // A (I − KH)ᵀ = A − A[:, sel] Kᵀ, column j = Σₖ A[:, k] (I − KH)[j, k] over the non-zeros
     // of row j (the columns sel, and j), then + K R Kᵀ.
     // K R Kᵀ by loops in the dense products' order (K R first, then its product with Kᵀ,
-    // each entry summed over the inner index ascending): the same numbers without
-    // nalgebra's generic product, which is not inlined here.
-    let mut kr = [[0.0f64; M]; N];
-    for (i, row) in kr.iter_mut().enumerate() {
-        for (l, out) in row.iter_mut().enumerate() {
-            let mut acc = 0.0;
-            for m in 0..M {
-                acc += k[(i, m)] * r[(m, l)];
+    // each entry summed over the inner index ascending from zero): the same numbers without
+    // nalgebra's generic product, which is not inlined here. Column by column, in axpy form,
+    // which vectorises down the columns.
+    let mut kr = SMatrix::<f64, N, M>::zeros();
+    for l in 0..M {
+        for m in 0..M {
+            let rml = r[(m, l)];
+            for i in 0..N {
+                kr[(i, l)] += k[(i, m)] * rml;
             }
-            *out = acc;
         }
     }
     let mut p_new = SMatrix::<f64, N, N>::zeros();
     for j in 0..N {
-        for (i, row) in kr.iter().enumerate() {
-            let mut acc = 0.0;
-            for (l, v) in row.iter().enumerate() {
-                acc += v * k[(j, l)];
+        for l in 0..M {
+            let kjl = k[(j, l)];
+            for i in 0..N {
+                p_new[(i, j)] += kr[(i, l)] * kjl;
             }
-            p_new[(i, j)] = acc;
         }
     }
     for j in 0..N {

@@ -474,11 +474,8 @@ impl HybridTracker {
                 self.stats.to_imm += 1;
             }
             Branch::Imm { .. } if t_s - self.last_fire_t_s >= self.params.min_manoeuvre_dwell_s => {
-                let (x, p) = self.imm.combined();
-                self.branch = Branch::Cv {
-                    x: kalman::rows::<6, _>(&x, 0),
-                    p: kalman::block::<6, 6, _, _>(&p, 0, 0),
-                };
+                let (x, p) = self.imm.combined_leading::<6>();
+                self.branch = Branch::Cv { x, p };
                 // Not read again before the next switch's reset: 2.6 KB less per aircraft.
                 self.imm.release();
                 self.stats.to_cv += 1;
@@ -600,7 +597,7 @@ impl Tracker for HybridTracker {
         let est = match &self.branch {
             Branch::Cv { x, p } => estimate_of(t_s, x, p, &info),
             Branch::Imm { .. } => {
-                let (x, p) = self.imm.combined();
+                let (x, p) = self.imm.combined_leading::<6>();
                 estimate_of(t_s, &x, &p, &info)
             }
         };

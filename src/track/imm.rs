@@ -779,6 +779,15 @@ impl Imm {
         (x, spread_sum::<9>(&states.x, &states.p, &self.mu, &x))
     }
 
+    /// [`Imm::combined`] over the leading K states (K ≤ 9): the same entries, the rest not
+    /// computed. An estimate reads position and velocity alone (K = 6: 21 covariance entries
+    /// of 45).
+    pub fn combined_leading<const K: usize>(&self) -> (SVector<f64, K>, SMatrix<f64, K, K>) {
+        let states = self.states();
+        let x = weighted_mean::<K>(&states.x, &self.mu);
+        (x, spread_sum::<K>(&states.x, &states.p, &self.mu, &x))
+    }
+
     /// The combined estimate x̂ = Σ μⱼ x̂ⱼ alone (no covariance: a tenth of the work).
     pub fn combined_state(&self) -> State9 {
         let mut x = State9::zeros();
@@ -1114,7 +1123,7 @@ impl ImmTracker {
 
     fn info(&self) -> EstimateInfo {
         let best = self.imm.most_probable();
-        let (x, _) = self.imm.combined();
+        let x = self.imm.combined_state();
         let labels = labels_of_mode(best, &x, &self.params.axes);
         EstimateInfo {
             labels,
@@ -1219,7 +1228,7 @@ impl Tracker for ImmTracker {
 
     fn estimate(&self) -> Option<Estimate> {
         let t_s = self.init.track_t_s()?;
-        let (x, p) = self.imm.combined();
+        let (x, p) = self.imm.combined_leading::<6>();
         Some(
             self.noise
                 .with_position_bias(estimate_of(t_s, &x, &p, &self.info())),
@@ -1571,5 +1580,40 @@ mod tests {
         let (xc, pc) = imm.combined();
         assert!((xc - x).norm() < 1e-12);
         assert!((pc - p).norm() < 1e-12);
+    }
+
+    /// The leading block of the combined estimate is computed alone with the same bits.
+    #[test]
+    fn the_combined_leading_block_is_the_combined_estimates() {
+        let mut imm = Imm::new(ImmParams::default());
+        let mut x = State9::zeros();
+        x[2] = 9000.0;
+        x[3] = 120.0;
+        imm.reset(&x, &(Matrix9::identity() * 25.0), None);
+        let (pos, vel) = (
+            Vector3::new(50.0, 20.0, 9010.0),
+            Vector3::new(118.0, 9.0, 1.5),
+        );
+        for k in 0..12 {
+            let obs = if k % 2 == 0 {
+                Observation::Position(Observed {
+                    value: pos + Vector3::new(60.0 * k as f64, 8.0 * (k as f64).sin(), 0.0),
+                    cov: Matrix3::identity() * 100.0,
+                })
+            } else {
+                Observation::Velocity(Observed {
+                    value: vel + Vector3::new(0.4 * (k as f64).cos(), 0.5, 0.0),
+                    cov: Matrix3::identity() * 0.3,
+                })
+            };
+            imm.step(0.5, &obs).unwrap();
+        }
+        let (x9, p9) = imm.combined();
+        // Several modes weigh in, so the spread of means is part of the sum.
+        assert!(imm.probabilities().iter().filter(|&&m| m > 1e-3).count() >= 3);
+        let (x6, p6) = imm.combined_leading::<6>();
+        assert_eq!(x6, kalman::rows::<6, 9>(&x9, 0));
+        assert_eq!(p6, kalman::block::<6, 6, 9, 9>(&p9, 0, 0));
+        assert_eq!(imm.combined_leading::<9>(), (x9, p9));
     }
 }

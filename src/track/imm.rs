@@ -322,48 +322,85 @@ struct ModeOutcome {
     correction: Matrix3<f64>,
 }
 
+/// [`mode_step`] with the state count of `model`'s kept states.
+fn mode_step_of(
+    model: &Model,
+    input: &ModeInput,
+    x_out: &mut State9,
+    p_out: &mut Packed9,
+) -> Result<ModeOutcome, TrackError> {
+    match model {
+        Model::Cv(m) => mode_step::<6>(m, input, x_out, p_out),
+        Model::Ct(m) => mode_step::<6>(m, input, x_out, p_out),
+        Model::Ch(m) => mode_step::<6>(m, input, x_out, p_out),
+        Model::Ca(m) => mode_step::<8>(m, input, x_out, p_out),
+        Model::Chca(m) => mode_step::<8>(m, input, x_out, p_out),
+    }
+}
+
+/// What one mode's filter reads in an IMM step.
+struct ModeInput<'a> {
+    /// Every mode's state after the last step.
+    states: &'a ModeStates,
+    /// This mode's mixing weights μᵢ|ⱼ.
+    w: &'a [f64; N_MODES],
+    dt_s: f64,
+    obs: &'a Observation,
+    divergence: &'a DivergenceParams,
+    /// This mode's consecutive divergence events before the step.
+    previous_run: u32,
+}
+
 /// One mode's mixing, prediction and guarded update on the leading K states of its
 /// [`ResetTail`] model, written to `x_out`, `p_out` as 9-state: the same numbers as
 /// [`mode_step_full`] (tested) with the work of a K-state filter. On an update error the
 /// prediction is written and the error returned. A model whose reset variance is not
 /// positive (no 9-state covariance would then be positive definite) takes the 9-state path,
 /// which is what fails there.
-#[allow(
-    clippy::too_many_arguments,
-    reason = "one IMM mode's inputs, in one place"
-)]
 fn mode_step<const K: usize>(
     model: &impl ResetTail<K>,
-    states: &ModeStates,
-    w: &[f64; N_MODES],
-    dt_s: f64,
-    obs: &Observation,
-    divergence: &DivergenceParams,
-    previous_run: u32,
+    input: &ModeInput,
     x_out: &mut State9,
     p_out: &mut Packed9,
 ) -> Result<ModeOutcome, TrackError> {
     let reset_var = model.reset_variance();
     if !(reset_var > 0.0 && reset_var.is_finite()) {
-        return mode_step_full(
-            model,
-            states,
-            w,
-            dt_s,
-            obs,
-            divergence,
-            previous_run,
-            x_out,
-            p_out,
-        );
+        return mode_step_full(model, input, x_out, p_out);
     }
-    let x0 = weighted_mean::<K>(&states.x, w);
-    let p0 = spread_sum::<K>(&states.x, &states.p, w, &x0);
-    let (f, q) = model.leading_fq(dt_s);
+    let x0 = weighted_mean::<K>(&input.states.x, input.w);
+    let p0 = spread_sum::<K>(&input.states.x, &input.states.p, input.w, &x0);
+    let (f, q) = model.leading_fq(input.dt_s);
     let pred = Prediction::<K>::from_fq(&f, q, &x0, &p0);
-    match guarded_update(&pred, obs, divergence, previous_run) {
+    guarded_mode(&pred, input, |x, p| embed(x, p, reset_var, x_out, p_out))
+}
+
+/// [`mode_step`] in the full 9 states, for any model: the reference the reduced step is
+/// tested against.
+fn mode_step_full(
+    model: &dyn MotionModel<9>,
+    input: &ModeInput,
+    x_out: &mut State9,
+    p_out: &mut Packed9,
+) -> Result<ModeOutcome, TrackError> {
+    let x0 = weighted_mean::<9>(&input.states.x, input.w);
+    let p0 = spread_sum::<9>(&input.states.x, &input.states.p, input.w, &x0);
+    let pred = Prediction::<9>::new(model, &x0, &p0, input.dt_s);
+    guarded_mode(&pred, input, |x, p| {
+        *x_out = *x;
+        *p_out = pack(p);
+    })
+}
+
+/// The guarded update of a mode's prediction: `write` gets the updated state (or, when the
+/// update fails, the prediction, and the error is returned).
+fn guarded_mode<const K: usize>(
+    pred: &Prediction<K>,
+    input: &ModeInput,
+    write: impl FnOnce(&SVector<f64, K>, &SMatrix<f64, K, K>),
+) -> Result<ModeOutcome, TrackError> {
+    match guarded_update(pred, input.obs, input.divergence, input.previous_run) {
         Ok(g) => {
-            embed(&g.x, &g.p, reset_var, x_out, p_out);
+            write(&g.x, &g.p);
             Ok(ModeOutcome {
                 run: g.run,
                 nis: g.nis,
@@ -374,47 +411,7 @@ fn mode_step<const K: usize>(
             })
         }
         Err(e) => {
-            embed(&pred.x, &pred.covariance(1.0), reset_var, x_out, p_out);
-            Err(e)
-        }
-    }
-}
-
-/// [`mode_step`] in the full 9 states, for any model: the reference the reduced step is
-/// tested against.
-#[allow(
-    clippy::too_many_arguments,
-    reason = "one IMM mode's inputs, in one place"
-)]
-fn mode_step_full(
-    model: &dyn MotionModel<9>,
-    states: &ModeStates,
-    w: &[f64; N_MODES],
-    dt_s: f64,
-    obs: &Observation,
-    divergence: &DivergenceParams,
-    previous_run: u32,
-    x_out: &mut State9,
-    p_out: &mut Packed9,
-) -> Result<ModeOutcome, TrackError> {
-    let x0 = weighted_mean::<9>(&states.x, w);
-    let p0 = spread_sum::<9>(&states.x, &states.p, w, &x0);
-    let pred = Prediction::<9>::new(model, &x0, &p0, dt_s);
-    match guarded_update(&pred, obs, divergence, previous_run) {
-        Ok(g) => {
-            *x_out = g.x;
-            *p_out = pack(&g.p);
-            Ok(ModeOutcome {
-                run: g.run,
-                nis: g.nis,
-                log_likelihood: g.log_likelihood,
-                blocks: g.blocks,
-                correction: pred.covariance_block3(g.adapt, VEL) - g.p.fixed_view::<3, 3>(VEL, VEL),
-            })
-        }
-        Err(e) => {
-            *x_out = pred.x;
-            *p_out = pack(&pred.covariance(1.0));
+            write(&pred.x, &pred.covariance(1.0));
             Err(e)
         }
     }
@@ -701,24 +698,15 @@ impl Imm {
                 *wi = row[j] * mu / c_bar[j];
             }
             // Mode-matched, divergence-guarded filtering, on the states the model keeps.
-            let run = self.divergence_runs[j];
-            let outcome = match &self.models[j] {
-                Model::Cv(m) => {
-                    mode_step::<6>(m, states, &w, dt_s, obs, divergence, run, x_out, p_out)
-                }
-                Model::Ct(m) => {
-                    mode_step::<6>(m, states, &w, dt_s, obs, divergence, run, x_out, p_out)
-                }
-                Model::Ch(m) => {
-                    mode_step::<6>(m, states, &w, dt_s, obs, divergence, run, x_out, p_out)
-                }
-                Model::Ca(m) => {
-                    mode_step::<8>(m, states, &w, dt_s, obs, divergence, run, x_out, p_out)
-                }
-                Model::Chca(m) => {
-                    mode_step::<8>(m, states, &w, dt_s, obs, divergence, run, x_out, p_out)
-                }
+            let input = ModeInput {
+                states,
+                w: &w,
+                dt_s,
+                obs,
+                divergence,
+                previous_run: self.divergence_runs[j],
             };
+            let outcome = mode_step_of(&self.models[j], &input, x_out, p_out);
             match outcome {
                 Ok(o) => {
                     any_ok = true;
@@ -1331,35 +1319,16 @@ mod tests {
             for model in &models {
                 let (mut x_r, mut p_r) = (State9::zeros(), [0.0; PACKED9]);
                 let (mut x_f, mut p_f) = (State9::zeros(), [0.0; PACKED9]);
-                let args = (&states, &w, dt_s, &obs, &divergence, run);
-                let reduced = match model {
-                    Model::Cv(m) => mode_step::<6>(
-                        m, args.0, args.1, args.2, args.3, args.4, args.5, &mut x_r, &mut p_r,
-                    ),
-                    Model::Ct(m) => mode_step::<6>(
-                        m, args.0, args.1, args.2, args.3, args.4, args.5, &mut x_r, &mut p_r,
-                    ),
-                    Model::Ch(m) => mode_step::<6>(
-                        m, args.0, args.1, args.2, args.3, args.4, args.5, &mut x_r, &mut p_r,
-                    ),
-                    Model::Ca(m) => mode_step::<8>(
-                        m, args.0, args.1, args.2, args.3, args.4, args.5, &mut x_r, &mut p_r,
-                    ),
-                    Model::Chca(m) => mode_step::<8>(
-                        m, args.0, args.1, args.2, args.3, args.4, args.5, &mut x_r, &mut p_r,
-                    ),
-                };
-                let full = mode_step_full(
-                    model.as_dyn(),
-                    &states,
-                    &w,
+                let input = ModeInput {
+                    states: &states,
+                    w: &w,
                     dt_s,
-                    &obs,
-                    &divergence,
-                    run,
-                    &mut x_f,
-                    &mut p_f,
-                );
+                    obs: &obs,
+                    divergence: &divergence,
+                    previous_run: run,
+                };
+                let reduced = mode_step_of(model, &input, &mut x_r, &mut p_r);
+                let full = mode_step_full(model.as_dyn(), &input, &mut x_f, &mut p_f);
                 // -0.0 and 0.0 are one value to every later operation.
                 assert!(x_r == x_f, "case {case} {model:?}: {x_r} vs {x_f}");
                 assert!(p_r == p_f, "case {case} {model:?}: covariance");

@@ -420,28 +420,10 @@ pub fn update_selected<const N: usize, const M: usize>(
     }
     // A (I − KH)ᵀ = A − A[:, sel] Kᵀ, column j = Σₖ A[:, k] (I − KH)[j, k] over the non-zeros
     // of row j (the columns sel, and j), then + K R Kᵀ.
-    // K R Kᵀ by loops in the dense products' order (K R first, then its product with Kᵀ,
-    // each entry summed over the inner index ascending from zero): the same numbers without
-    // nalgebra's generic product, which is not inlined here. Column by column, in axpy form,
-    // which vectorises down the columns.
-    let mut kr = SMatrix::<f64, N, M>::zeros();
-    for l in 0..M {
-        for m in 0..M {
-            let rml = r[(m, l)];
-            for i in 0..N {
-                kr[(i, l)] += k[(i, m)] * rml;
-            }
-        }
-    }
-    let mut p_new = SMatrix::<f64, N, N>::zeros();
-    for j in 0..N {
-        for l in 0..M {
-            let kjl = k[(j, l)];
-            for i in 0..N {
-                p_new[(i, j)] += kr[(i, l)] * kjl;
-            }
-        }
-    }
+    // K R Kᵀ by loops in the dense products' order (K R first, then its product with Kᵀ):
+    // the same numbers without nalgebra's generic product, which is not inlined here.
+    let kr = columns_times::<N, M, M>(&k, |m, l| r[(m, l)]);
+    let mut p_new = columns_times::<N, M, N>(&kr, |l, j| k[(j, l)]);
     for j in 0..N {
         let mut col = [0.0; N];
         for (kk, &m) in slot.iter().enumerate() {
@@ -462,6 +444,26 @@ pub fn update_selected<const N: usize, const M: usize>(
     }
     let p_new = symmetrise(&p_new);
     accept(x, p, x_new, p_new, &chol, residual, s)
+}
+
+/// The N×C product whose column c is Σₜ a[:, t]·coef(t, c): a times the T×C matrix `coef`,
+/// in axpy form down the columns (which vectorises), each entry summed over t ascending from
+/// zero as nalgebra's dense product sums it.
+#[inline(always)]
+fn columns_times<const N: usize, const T: usize, const C: usize>(
+    a: &SMatrix<f64, N, T>,
+    coef: impl Fn(usize, usize) -> f64,
+) -> SMatrix<f64, N, C> {
+    let mut out = SMatrix::<f64, N, C>::zeros();
+    for c in 0..C {
+        for t in 0..T {
+            let w = coef(t, c);
+            for i in 0..N {
+                out[(i, c)] += a[(i, t)] * w;
+            }
+        }
+    }
+    out
 }
 
 /// NIS = εᵀ S⁻¹ ε = |L⁻¹ ε|² and ln N(ε; 0, S) with ln det S = 2 Σ ln Lᵢᵢ (log space).

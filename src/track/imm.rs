@@ -7,6 +7,9 @@
 //!    P⁰ⱼ = Σᵢ μᵢ|ⱼ [Pᵢ + (x̂ᵢ − x̂⁰ⱼ)(x̂ᵢ − x̂⁰ⱼ)ᵀ].
 //! 2. Mode-matched filtering: each model predicts from (x̂⁰ⱼ, P⁰ⱼ) and updates with the
 //!    report, the step guarded by paper 000's divergence suppressor ([`super::divergence`]).
+//!    Each mode does this on the states its model keeps, the reset accelerations being
+//!    restored as the 9-state step leaves them ([`ResetTail`]: 6 states for CV, CT and CH, 8
+//!    for CA and CHCA): the same numbers for half the work or less.
 //! 3. Mode probabilities: μⱼ ∝ c̄ⱼ Λⱼ with Λⱼ the likelihood of the nominal residual,
 //!    computed in LOG space: ln μⱼ = ln c̄ⱼ + ln Λⱼ − logsumexp (a residual of a few hundred
 //!    σ gives ln Λ ≈ −10⁵, whose exponential underflows f64 to 0 in every mode at once).

@@ -729,6 +729,18 @@ mod tests {
         }
     }
 
+    /// An aircraft with the default tracker, and what handling and publishing it needs.
+    fn default_aircraft() -> (Aircraft, Counts, Decoder, TaskContext, Slot) {
+        let cfg = config(crate::daemon::build_tracker);
+        (
+            Aircraft::new(ICAO, &cfg),
+            Counts::default(),
+            decoder(),
+            context(),
+            Slot::default(),
+        )
+    }
+
     /// One frame's bytes at `t_s`, decoded.
     fn frame(dec: &mut Decoder, t_s: f64, bytes: &[u8]) -> Decoded {
         RawFrame::new(t_s, bytes, None)
@@ -771,12 +783,7 @@ mod tests {
     #[test]
     fn an_ended_tracks_snapshot_keeps_counting_messages() {
         use crate::sim::encode::{airborne_velocity, identification, VelocityReport};
-        let cfg = config(crate::daemon::build_tracker);
-        let mut ac = Aircraft::new(ICAO, &cfg);
-        let mut counts = Counts::default();
-        let mut dec = decoder();
-        let ctx = context();
-        let slot = Slot::default();
+        let (mut ac, mut counts, mut dec, ctx, slot) = default_aircraft();
         let mut one = |ac: &mut Aircraft, d: &[Decoded]| {
             for d in d {
                 ac.handle(d, &mut counts);
@@ -815,12 +822,7 @@ mod tests {
     #[test]
     fn an_aircraft_without_a_position_is_heard_until_its_first_snapshot() {
         use crate::sim::encode::identification;
-        let cfg = config(crate::daemon::build_tracker);
-        let mut ac = Aircraft::new(ICAO, &cfg);
-        let mut counts = Counts::default();
-        let mut dec = decoder();
-        let ctx = context();
-        let slot = Slot::default();
+        let (mut ac, mut counts, mut dec, ctx, slot) = default_aircraft();
         let callsign = crate::decode::Callsign(*b"KLM1023 ");
         ac.handle(
             &frame(&mut dec, 99.0, &identification(ICAO, 3, &callsign)),

@@ -210,16 +210,18 @@ fn pack(p: &Matrix9) -> Packed9 {
     out
 }
 
-/// The symmetric matrix whose upper triangle `packed` holds.
-fn unpack(packed: &Packed9) -> Matrix9 {
-    let mut cols = [[0.0f64; 9]; 9];
-    for (c, col) in cols.iter_mut().enumerate() {
-        if let (Some(o), Some(v)) = (col.get_mut(..=c), packed.get(packed_col(c))) {
-            o.copy_from_slice(v);
+/// The symmetric matrix whose upper triangle `packed` holds, or its leading K×K block
+/// (K ≤ 9: the first K(K+1)/2 entries).
+fn unpack<const K: usize>(packed: &Packed9) -> SMatrix<f64, K, K> {
+    let mut m = SMatrix::<f64, K, K>::zeros();
+    for c in 0..K {
+        if let Some(col) = packed.get(packed_col(c)) {
+            for (r, v) in col.iter().enumerate() {
+                m[(r, c)] = *v;
+                m[(c, r)] = *v;
+            }
         }
     }
-    let mut m = Matrix9::from(cols);
-    m.fill_lower_triangle_with_upper_triangle();
     m
 }
 
@@ -260,16 +262,7 @@ fn spread_sum<const K: usize>(
             }
         }
     }
-    let mut m = SMatrix::<f64, K, K>::zeros();
-    for c in 0..K {
-        if let Some(col) = out.get(packed_col(c)) {
-            for (r, v) in col.iter().enumerate() {
-                m[(r, c)] = *v;
-                m[(c, r)] = *v;
-            }
-        }
-    }
-    m
+    unpack::<K>(&out)
 }
 
 /// Σᵢ wᵢ x̂ᵢ over the leading K states, the terms with wᵢ > 0.
@@ -761,13 +754,10 @@ impl Imm {
         Ok(())
     }
 
-    /// The combined estimate x̂ = Σ μⱼ x̂ⱼ and P = Σ μⱼ [Pⱼ + (x̂ⱼ − x̂)(x̂ⱼ − x̂)ᵀ].
+    /// The combined estimate x̂ = Σ μⱼ x̂ⱼ and P = Σ μⱼ [Pⱼ + (x̂ⱼ − x̂)(x̂ⱼ − x̂)ᵀ], symmetric by
+    /// construction (each Pⱼ is): symmetrising it would change nothing.
     pub fn combined(&self) -> (State9, Matrix9) {
-        let x = self.combined_state();
-        // Σ μⱼ [Pⱼ + dⱼ dⱼᵀ] is symmetric by construction (each Pⱼ is): symmetrising it
-        // changes nothing.
-        let states = self.states();
-        (x, spread_sum::<9>(&states.x, &states.p, &self.mu, &x))
+        self.combined_leading::<9>()
     }
 
     /// [`Imm::combined`] over the leading K states (K ≤ 9): the same entries, the rest not
@@ -781,13 +771,7 @@ impl Imm {
 
     /// The combined estimate x̂ = Σ μⱼ x̂ⱼ alone (no covariance: a tenth of the work).
     pub fn combined_state(&self) -> State9 {
-        let mut x = State9::zeros();
-        for (xj, mu) in self.states().x.iter().zip(self.mu) {
-            if mu > 0.0 {
-                x += xj * mu;
-            }
-        }
-        x
+        weighted_mean::<9>(&self.states().x, &self.mu)
     }
 }
 
@@ -1384,7 +1368,7 @@ mod tests {
             }
             assert_eq!(spread_sum(&x, &p.map(|pi| pack(&pi)), &w, &mean), full);
             // Packing is lossless for a symmetric matrix.
-            assert!(p.iter().all(|pi| unpack(&pack(pi)) == *pi));
+            assert!(p.iter().all(|pi| unpack::<9>(&pack(pi)) == *pi));
         }
     }
 

@@ -588,8 +588,9 @@ pub trait ResetTail<const K: usize>: MotionModel<9> {
 }
 
 impl ResetTail<6> for Cv {
+    /// The 6-state CV filter's F and Q.
     fn leading_fq(&self, dt_s: f64) -> (Matrix6, Matrix6) {
-        cv3d::<6>(dt_s, self.densities())
+        MotionModel::<6>::fq(self, dt_s)
     }
     fn reset_variance(&self) -> f64 {
         self.acc_reset_sigma_mps2 * self.acc_reset_sigma_mps2

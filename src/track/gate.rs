@@ -617,6 +617,9 @@ pub struct Gate {
     end: usize,
     /// Samples held (at most the longest window), the newest `len` before `end`.
     len: usize,
+    /// The oldest held sample within `max_window_s` of the newest: every window starts at
+    /// or after it. Found once per push ([`Gate::window_start_of_newest`]).
+    window_start: usize,
     /// The newest sample's heading wrapped to (−π, π], rad: what the next one unwraps
     /// from.
     newest_angle_rad: f64,
@@ -637,6 +640,7 @@ impl Gate {
             params: super::shared::shared(params),
             end: 0,
             len: 0,
+            window_start: 0,
             newest_angle_rad: 0.0,
             reading: GateReading::default(),
             turn_start_s: None,
@@ -653,6 +657,7 @@ impl Gate {
     pub fn clear(&mut self) {
         self.len = 0;
         self.end = 0;
+        self.window_start = 0;
         self.reading = GateReading::default();
         self.turn_start_s = None;
         self.vrate_noise = DiffNoise::default();
@@ -708,24 +713,30 @@ impl Gate {
 
     /// The newest `n` samples within `max_window_s` of the newest, oldest first.
     fn recent(&self, n: usize) -> &[Sample] {
-        let k = n.min(self.len);
-        let held = self
-            .samples
-            .get(self.end.saturating_sub(k)..self.end)
-            .unwrap_or(&[]);
+        let from = self
+            .end
+            .saturating_sub(n.min(self.len))
+            .max(self.window_start);
+        self.samples.get(from..self.end).unwrap_or(&[])
+    }
+
+    /// The index of the oldest held sample within `max_window_s` of the newest (`end` when
+    /// none is held). Samples are in time order, so the window starts after the newest one
+    /// older than the cut: scanned from the newest, which touches only samples the tests
+    /// read next (a binary search probed the middle of the buffer, out of cache at fleet
+    /// scale). Once per push, where each window scanned for itself before (five scans of
+    /// up to 24 samples a report).
+    fn window_start_of_newest(&self) -> usize {
+        let from = self.end.saturating_sub(self.len);
+        let held = self.samples.get(from..self.end).unwrap_or(&[]);
         let Some(newest) = held.last() else {
-            return held;
+            return self.end;
         };
         let oldest_t = newest.t_s - self.params.max_window_s;
-        // Samples are in time order: the window starts after the newest one older than the
-        // cut. Scanned from the newest, which touches only samples the caller reads next; a
-        // binary search probed the middle of the buffer, which at fleet scale is out of cache
-        // (`Gate::push` went from 11.3 to 8.4 % of a 1000-aircraft replay's profile).
-        let first = held
+        from + held
             .iter()
             .rposition(|s| s.t_s < oldest_t)
-            .map_or(0, |i| i + 1);
-        held.get(first..).unwrap_or(&[])
+            .map_or(0, |i| i + 1)
     }
 
     /// Adds a velocity at `t_s` and re-evaluates every test. `measured`: the velocity comes
@@ -798,6 +809,7 @@ impl Gate {
         }
         self.end += 1;
         self.len = (self.len + 1).min(self.capacity());
+        self.window_start = self.window_start_of_newest();
         self.newest_angle_rad = angle_rad;
         self.evaluate();
         &self.reading
@@ -1059,6 +1071,38 @@ mod tests {
             }
         }
         (fired as f64 / total as f64, last)
+    }
+
+    #[test]
+    fn every_window_is_the_newest_samples_within_the_time_cut() {
+        // Gaps from 0.1 s to beyond `max_window_s` (30 s), through many slides of the
+        // buffer: each window is the newest n held samples no older than the newest less
+        // max_window_s, as a plain filter over everything pushed finds them.
+        let mut rng = StdRng::seed_from_u64(17);
+        let gap = rand_distr::Uniform::new(0.1, 12.0);
+        let mut gate = Gate::new(GateParams::default());
+        let mut times = Vec::new();
+        let mut t = 0.0;
+        for k in 0..2000 {
+            t += if k % 97 == 0 {
+                45.0
+            } else {
+                gap.sample(&mut rng)
+            };
+            gate.push(
+                t,
+                &report(Vector3::new(100.0, 50.0, 0.0), 0.5, &mut rng),
+                true,
+            );
+            times.push(t);
+            let cut = t - gate.params.max_window_s;
+            for n in [1, 5, 6, 11, 12, 24, GATE_CAPACITY] {
+                let held = &times[times.len().saturating_sub(n.min(gate.len))..];
+                let want: Vec<f64> = held.iter().copied().filter(|&s| s >= cut).collect();
+                let got: Vec<f64> = gate.recent(n).iter().map(|s| s.t_s).collect();
+                assert_eq!(got, want, "push {k}, n {n}");
+            }
+        }
     }
 
     /// 95 % radius of a circular 2-D Gaussian per σ (DO-260B's NACv bounds are 95 %).

@@ -121,6 +121,12 @@ pub struct ReplayProgress {
 /// Wall-clock slice of paced sending: frames within one slice go in one batch.
 const PACING_SLICE: Duration = Duration::from_millis(50);
 
+/// Room for one file chunk's frames: a Beast Mode S frame takes at least 16 bytes (9 of
+/// header, a 7-byte short frame), so a chunk rarely holds more, and the batch is not
+/// reallocated while it fills (with 8192 slots every 256 KB chunk of DF17 frames, 23 bytes
+/// each, grew once and copied 8192 frames).
+const BATCH_FRAMES: usize = crate::feed::replay::CHUNK_BYTES / 16;
+
 /// Runs the replay to its end (or forever when looping) on the calling (blocking) thread.
 pub fn run_replay(
     replay: &Replay,
@@ -132,7 +138,7 @@ pub fn run_replay(
     let start_wall = Instant::now();
     let mut start_feed: Option<f64> = None;
     let mut last_stats;
-    let mut frames: Vec<RawFrame> = Vec::with_capacity(8192);
+    let mut frames: Vec<RawFrame> = Vec::with_capacity(BATCH_FRAMES);
     let mut last_print = Instant::now();
     let feed_name: Arc<str> = Arc::from(match &replay.data {
         ReplayData::File(p) => p.display().to_string(),
@@ -174,7 +180,7 @@ pub fn run_replay(
             } else if !frames.is_empty() {
                 let batch = FrameBatch {
                     feed: feed_name.clone(),
-                    frames: std::mem::replace(&mut frames, Vec::with_capacity(8192)),
+                    frames: std::mem::replace(&mut frames, Vec::with_capacity(BATCH_FRAMES)),
                     arrived: Instant::now(),
                     done: None,
                 };

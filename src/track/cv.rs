@@ -286,14 +286,6 @@ fn observed_is_finite(o: &Observed) -> bool {
 }
 
 /// `[I 0]` (position) or `[0 I]` (velocity) as a 3x6 observation matrix.
-fn h_block(offset: usize) -> SMatrix<f64, 3, 6> {
-    let mut h = SMatrix::<f64, 3, 6>::zeros();
-    for i in 0..3 {
-        h[(i, offset + i)] = 1.0;
-    }
-    h
-}
-
 impl Tracker for CvKalman {
     fn reset(&mut self) {
         *self = Self::new(self.params);
@@ -350,7 +342,7 @@ impl Tracker for CvKalman {
                 r.fixed_view_mut::<3, 3>(0, 0).copy_from(&pos.cov);
                 r.fixed_view_mut::<3, 3>(3, 3).copy_from(&vel.cov);
                 let inn: Innovation<6> =
-                    kalman::update(&mut x, &mut p, &z, &Matrix6::identity(), &r)?;
+                    kalman::update_selected(&mut x, &mut p, &z, &kalman::blocks6(0, 3), &r)?;
                 self.nis
                     .push(inn.nis, super::nis::measured_dof(Some(pos), Some(vel)));
                 Some((
@@ -359,13 +351,25 @@ impl Tracker for CvKalman {
                 ))
             }
             (Some(pos), None) => {
-                let inn = kalman::update(&mut x, &mut p, &pos.value, &h_block(0), &pos.cov)?;
+                let inn = kalman::update_selected(
+                    &mut x,
+                    &mut p,
+                    &pos.value,
+                    &kalman::block3(0),
+                    &pos.cov,
+                )?;
                 self.nis
                     .push(inn.nis, super::nis::measured_dof(Some(pos), None));
                 Some((inn.residual, inn.s))
             }
             (None, Some(vel)) => {
-                let inn = kalman::update(&mut x, &mut p, &vel.value, &h_block(3), &vel.cov)?;
+                let inn = kalman::update_selected(
+                    &mut x,
+                    &mut p,
+                    &vel.value,
+                    &kalman::block3(3),
+                    &vel.cov,
+                )?;
                 self.nis
                     .push(inn.nis, super::nis::measured_dof(None, Some(vel)));
                 None

@@ -287,19 +287,28 @@ fn embed<const K: usize>(
     x_out: &mut State9,
     p_out: &mut Packed9,
 ) {
-    for (i, o) in x_out.iter_mut().enumerate() {
-        *o = x.get(i).copied().unwrap_or(0.0);
+    x_out.fill(0.0);
+    for (o, v) in x_out.iter_mut().zip(x.iter()) {
+        *o = *v;
     }
+    // Column c of the packed triangle is rows 0..=c: the kept block's column for c < K,
+    // else zeros with the reset variance on the diagonal. Whole columns are copied (one
+    // bounds check each, not one per entry).
+    p_out.fill(0.0);
     for c in 0..9 {
-        if let Some(col) = p_out.get_mut(packed_col(c)) {
-            for (r, o) in col.iter_mut().enumerate() {
-                *o = if c < K {
-                    p.get((r, c)).copied().unwrap_or(0.0)
-                } else if r == c {
-                    reset_var
-                } else {
-                    0.0
-                };
+        let Some(col) = p_out.get_mut(packed_col(c)) else {
+            continue;
+        };
+        match p.data.0.get(c) {
+            Some(kept) => {
+                for (o, v) in col.iter_mut().zip(kept) {
+                    *o = *v;
+                }
+            }
+            None => {
+                if let Some(diagonal) = col.last_mut() {
+                    *diagonal = reset_var;
+                }
             }
         }
     }

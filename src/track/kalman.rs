@@ -148,6 +148,74 @@ const SUPPORT8: [&[usize]; 8] = [
     &[7],
 ];
 
+/// [`SUPPORT9`]'s leading 6 states, the support of the models that keep position and
+/// velocity alone (CV, CT, CH, [`super::models::ResetTail`]) and of the CV filter, by row:
+/// {0, 3, 4}, {1, 3, 4}, {2, 5}, {3, 4}, {3, 4}, {5}. 13 entries of 36, written out in
+/// [`fpf_support6`]; what is off it is [`OFF_SUPPORT6`] (tested against this list).
+#[cfg(test)]
+const SUPPORT6: [&[usize]; 6] = [&[0, 3, 4], &[1, 3, 4], &[2, 5], &[3, 4], &[3, 4], &[5]];
+
+/// The column-major indices (6c + r) of the 23 entries of a 6x6 F off the 6-state
+/// support of the motion models (the leading block of [`SUPPORT9`]).
+const OFF_SUPPORT6: [usize; 23] = [
+    1, 2, 3, 4, 5, // column 0: rows 1-5
+    6, 8, 9, 10, 11, // column 1: rows 0, 2-5
+    12, 13, 15, 16, 17, // column 2: rows 0, 1, 3-5
+    20, 23, // column 3: rows 2, 5
+    26, 29, // column 4: rows 2, 5
+    30, 31, 33, 34, // column 5: rows 0, 1, 3, 4
+];
+
+/// F P Fᵀ for a 6x6 F zero at [`OFF_SUPPORT6`], both matrices column-major (entry (r, c) at
+/// 6c + r): [`fpf_on_support`] on that support written out, so no support list is walked at
+/// run time. The same terms in the same order, so the same bits as the dense product
+/// (tested); 156 products where the dense one takes 432. `None` when F has a non-zero off
+/// the support.
+fn fpf_support6(f: &[f64; 36], p: &[f64; 36]) -> Option<[f64; 36]> {
+    // Column-major: F[r, c] is f[6c + r].
+    if OFF_SUPPORT6.iter().any(|&i| f[i] != 0.0) {
+        return None;
+    }
+    let fe = |r: usize, c: usize| f[6 * c + r];
+    // G = F P, column j: G[i, j] = Σₖ F[i, k] P[k, j] over row i's support, k ascending,
+    // from zero as the dense product sums.
+    let mut g = [[0.0; 6]; 6];
+    for (gc, pc) in g.iter_mut().zip(p.chunks_exact(6)) {
+        let pc: &[f64; 6] = pc.try_into().ok()?;
+        *gc = [
+            0.0 + fe(0, 0) * pc[0] + fe(0, 3) * pc[3] + fe(0, 4) * pc[4],
+            0.0 + fe(1, 1) * pc[1] + fe(1, 3) * pc[3] + fe(1, 4) * pc[4],
+            0.0 + fe(2, 2) * pc[2] + fe(2, 5) * pc[5],
+            0.0 + fe(3, 3) * pc[3] + fe(3, 4) * pc[4],
+            0.0 + fe(4, 3) * pc[3] + fe(4, 4) * pc[4],
+            0.0 + fe(5, 5) * pc[5],
+        ];
+    }
+    // G Fᵀ, column j: Σₖ G[:, k] F[j, k] over row j's support, k ascending (axpy form).
+    let column = |terms: &[(usize, f64)]| {
+        let mut o = [0.0; 6];
+        for &(k, w) in terms {
+            for (ov, gv) in o.iter_mut().zip(&g[k]) {
+                *ov += gv * w;
+            }
+        }
+        o
+    };
+    let cols = [
+        column(&[(0, fe(0, 0)), (3, fe(0, 3)), (4, fe(0, 4))]),
+        column(&[(1, fe(1, 1)), (3, fe(1, 3)), (4, fe(1, 4))]),
+        column(&[(2, fe(2, 2)), (5, fe(2, 5))]),
+        column(&[(3, fe(3, 3)), (4, fe(3, 4))]),
+        column(&[(3, fe(4, 3)), (4, fe(4, 4))]),
+        column(&[(5, fe(5, 5))]),
+    ];
+    let mut out = [0.0; 36];
+    for (o, c) in out.chunks_exact_mut(6).zip(&cols) {
+        o.copy_from_slice(c);
+    }
+    Some(out)
+}
+
 /// Whether every non-zero of `f` lies in `support` (one row slice per row).
 fn within_support<const N: usize>(f: &SMatrix<f64, N, N>, support: &[&[usize]]) -> bool {
     support.len() == N
@@ -204,8 +272,17 @@ pub fn sparse_fpf<const N: usize>(
     if N == 8 && within_support(f, &SUPPORT8) {
         return fpf_on_support(f, p, &SUPPORT8);
     }
+    if let (Ok(f6), Ok(p6)) = (
+        <&[f64; 36]>::try_from(f.as_slice()),
+        <&[f64; 36]>::try_from(p.as_slice()),
+    ) {
+        if let Some(out) = fpf_support6(f6, p6) {
+            return SMatrix::<f64, N, N>::from_column_slice(&out);
+        }
+    }
     if N < 9 {
-        // Up to 6x6 the dense product, fully unrolled and vectorised, is the faster.
+        // Other sizes below 9 (and a 6x6 F off the models' pattern): the dense product,
+        // fully unrolled and vectorised.
         return f * p * f.transpose();
     }
     if N == 9 && within_support(f, &SUPPORT9) {
@@ -628,7 +705,7 @@ mod tests {
 
         #[test]
         fn sparse_prediction_is_the_dense_product(seed in any::<u64>(), dt in 0.0..30.0f64) {
-            use crate::track::models::{Ca, Ch, Chca, Ct, Cv};
+            use crate::track::models::{Ca, Ch, Chca, Ct, Cv, ResetTail};
             let mut rng = StdRng::seed_from_u64(seed);
             let p = random_spd::<9>(&mut rng, 3.0);
             let models: [&dyn MotionModel<9>; 6] = [
@@ -655,8 +732,21 @@ mod tests {
             let p6 = random_spd::<6>(&mut rng, 3.0);
             let f6 = MotionModel::<6>::f(&Cv::default(), dt);
             prop_assert_eq!(sparse_fpf(&f6, &p6), f6 * p6 * f6.transpose());
+            // The 6-state leading blocks of the models that keep position and velocity
+            // alone (`SUPPORT6`), and a 6x6 F off that pattern (the dense path).
+            let leading6 = [
+                ResetTail::<6>::leading_fq(&Cv::default(), dt).0,
+                ResetTail::<6>::leading_fq(&Ct::turning(true, 0.05), dt).0,
+                ResetTail::<6>::leading_fq(&Ct::turning(false, 0.3), dt).0,
+                ResetTail::<6>::leading_fq(&Ch::default(), dt).0,
+            ];
+            for f6 in leading6 {
+                prop_assert_eq!(sparse_fpf(&f6, &p6), f6 * p6 * f6.transpose());
+            }
+            let mut off = leading6[1];
+            off[(5, 0)] = 0.25;
+            prop_assert_eq!(sparse_fpf(&off, &p6), off * p6 * off.transpose());
             // The 8-state leading blocks of the models with horizontal acceleration.
-            use crate::track::models::ResetTail;
             let p8 = random_spd::<8>(&mut rng, 3.0);
             for f8 in [Ca::default().leading_fq(dt).0, Chca::default().leading_fq(dt).0] {
                 prop_assert_eq!(sparse_fpf(&f8, &p8), f8 * p8 * f8.transpose());
@@ -672,6 +762,19 @@ mod tests {
             let b = a - SMatrix::<f64, 9, 9>::identity() * (min * (1.0 - shift));
             prop_assert_eq!(is_positive_definite(&b), Cholesky::new(b).is_some());
         }
+    }
+
+    #[test]
+    fn the_6_state_off_support_list_is_the_complement_of_the_support() {
+        let mut off = Vec::new();
+        for c in 0..6 {
+            for (r, cols) in SUPPORT6.iter().enumerate() {
+                if !cols.contains(&c) {
+                    off.push(6 * c + r);
+                }
+            }
+        }
+        assert_eq!(off, OFF_SUPPORT6);
     }
 
     #[test]

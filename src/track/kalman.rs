@@ -136,7 +136,10 @@ const SUPPORT9: [&[usize]; 9] = [
 ];
 
 /// [`SUPPORT9`] without the vertical acceleration (state 8): the leading 8 states of the
-/// models with horizontal acceleration ([`super::models::ResetTail`]). 18 entries of 64.
+/// models with horizontal acceleration ([`super::models::ResetTail`]). 19 entries of 64,
+/// written out in [`fpf_support8`]; what is off it is [`OFF_SUPPORT8`] (tested against
+/// this list).
+#[cfg(test)]
 const SUPPORT8: [&[usize]; 8] = [
     &[0, 3, 4, 6],
     &[1, 3, 4, 7],
@@ -165,6 +168,67 @@ const OFF_SUPPORT6: [usize; 23] = [
     26, 29, // column 4: rows 2, 5
     30, 31, 33, 34, // column 5: rows 0, 1, 3, 4
 ];
+
+/// The column-major indices (8c + r) of the 45 entries of an 8x8 F off the 8-state support
+/// of the models with horizontal acceleration (the leading block of [`SUPPORT9`]).
+const OFF_SUPPORT8: [usize; 45] = [
+    1, 2, 3, 4, 5, 6, 7, // column 0: rows 1-7
+    8, 10, 11, 12, 13, 14, 15, // column 1: rows 0, 2-7
+    16, 17, 19, 20, 21, 22, 23, // column 2: rows 0, 1, 3-7
+    26, 29, 30, 31, // column 3: rows 2, 5-7
+    34, 37, 38, 39, // column 4: rows 2, 5-7
+    40, 41, 43, 44, 46, 47, // column 5: rows 0, 1, 3, 4, 6, 7
+    49, 50, 52, 53, 55, // column 6: rows 1, 2, 4, 5, 7
+    56, 58, 59, 61, 62, // column 7: rows 0, 2, 3, 5, 6
+];
+
+/// [`fpf_support6`] for the 8-state blocks (F zero at [`OFF_SUPPORT8`]): 19 non-zeros, 304
+/// products where the dense one takes 1024, the same bits (tested).
+fn fpf_support8(f: &[f64; 64], p: &[f64; 64]) -> Option<[f64; 64]> {
+    // Column-major: F[r, c] is f[8c + r].
+    if OFF_SUPPORT8.iter().any(|&i| f[i] != 0.0) {
+        return None;
+    }
+    let fe = |r: usize, c: usize| f[8 * c + r];
+    let mut g = [[0.0; 8]; 8];
+    for (gc, pc) in g.iter_mut().zip(p.chunks_exact(8)) {
+        let pc: &[f64; 8] = pc.try_into().ok()?;
+        *gc = [
+            0.0 + fe(0, 0) * pc[0] + fe(0, 3) * pc[3] + fe(0, 4) * pc[4] + fe(0, 6) * pc[6],
+            0.0 + fe(1, 1) * pc[1] + fe(1, 3) * pc[3] + fe(1, 4) * pc[4] + fe(1, 7) * pc[7],
+            0.0 + fe(2, 2) * pc[2] + fe(2, 5) * pc[5],
+            0.0 + fe(3, 3) * pc[3] + fe(3, 4) * pc[4] + fe(3, 6) * pc[6],
+            0.0 + fe(4, 3) * pc[3] + fe(4, 4) * pc[4] + fe(4, 7) * pc[7],
+            0.0 + fe(5, 5) * pc[5],
+            0.0 + fe(6, 6) * pc[6],
+            0.0 + fe(7, 7) * pc[7],
+        ];
+    }
+    let column = |terms: &[(usize, f64)]| {
+        let mut o = [0.0; 8];
+        for &(k, w) in terms {
+            for (ov, gv) in o.iter_mut().zip(&g[k]) {
+                *ov += gv * w;
+            }
+        }
+        o
+    };
+    let cols = [
+        column(&[(0, fe(0, 0)), (3, fe(0, 3)), (4, fe(0, 4)), (6, fe(0, 6))]),
+        column(&[(1, fe(1, 1)), (3, fe(1, 3)), (4, fe(1, 4)), (7, fe(1, 7))]),
+        column(&[(2, fe(2, 2)), (5, fe(2, 5))]),
+        column(&[(3, fe(3, 3)), (4, fe(3, 4)), (6, fe(3, 6))]),
+        column(&[(3, fe(4, 3)), (4, fe(4, 4)), (7, fe(4, 7))]),
+        column(&[(5, fe(5, 5))]),
+        column(&[(6, fe(6, 6))]),
+        column(&[(7, fe(7, 7))]),
+    ];
+    let mut out = [0.0; 64];
+    for (o, c) in out.chunks_exact_mut(8).zip(&cols) {
+        o.copy_from_slice(c);
+    }
+    Some(out)
+}
 
 /// F P Fᵀ for a 6x6 F zero at [`OFF_SUPPORT6`], both matrices column-major (entry (r, c) at
 /// 6c + r): [`fpf_on_support`] on that support written out, so no support list is walked at
@@ -264,13 +328,20 @@ fn fpf_on_support<const N: usize>(
 /// the terms of a superset of F's non-zeros, k still ascending, therefore gives the same
 /// floating-point result with nnz·N instead of N³ multiplications per product (tested
 /// bit-equal): the motion models' fixed pattern ([`SUPPORT9`]) when F fits it, else the
-/// non-zeros found in F. Below 8x8 the dense product is used (faster there, same result).
+/// non-zeros found in F. The 6- and 8-state blocks of the models are written out on their
+/// support ([`fpf_support6`], [`fpf_support8`]); any other F below 9x9 takes the dense
+/// product (same result).
 pub fn sparse_fpf<const N: usize>(
     f: &SMatrix<f64, N, N>,
     p: &SMatrix<f64, N, N>,
 ) -> SMatrix<f64, N, N> {
-    if N == 8 && within_support(f, &SUPPORT8) {
-        return fpf_on_support(f, p, &SUPPORT8);
+    if let (Ok(f8), Ok(p8)) = (
+        <&[f64; 64]>::try_from(f.as_slice()),
+        <&[f64; 64]>::try_from(p.as_slice()),
+    ) {
+        if let Some(out) = fpf_support8(f8, p8) {
+            return SMatrix::<f64, N, N>::from_column_slice(&out);
+        }
     }
     if let (Ok(f6), Ok(p6)) = (
         <&[f64; 36]>::try_from(f.as_slice()),
@@ -281,8 +352,8 @@ pub fn sparse_fpf<const N: usize>(
         }
     }
     if N < 9 {
-        // Other sizes below 9 (and a 6x6 F off the models' pattern): the dense product,
-        // fully unrolled and vectorised.
+        // Other sizes below 9, and a 6x6 or 8x8 F off the models' pattern: the dense
+        // product, fully unrolled and vectorised.
         return f * p * f.transpose();
     }
     if N == 9 && within_support(f, &SUPPORT9) {
@@ -751,6 +822,9 @@ mod tests {
             for f8 in [Ca::default().leading_fq(dt).0, Chca::default().leading_fq(dt).0] {
                 prop_assert_eq!(sparse_fpf(&f8, &p8), f8 * p8 * f8.transpose());
             }
+            let mut off8 = Ca::default().leading_fq(dt).0;
+            off8[(7, 0)] = 0.5;
+            prop_assert_eq!(sparse_fpf(&off8, &p8), off8 * p8 * off8.transpose());
         }
 
         #[test]
@@ -765,7 +839,7 @@ mod tests {
     }
 
     #[test]
-    fn the_6_state_off_support_list_is_the_complement_of_the_support() {
+    fn the_off_support_lists_are_the_complements_of_the_supports() {
         let mut off = Vec::new();
         for c in 0..6 {
             for (r, cols) in SUPPORT6.iter().enumerate() {
@@ -775,6 +849,15 @@ mod tests {
             }
         }
         assert_eq!(off, OFF_SUPPORT6);
+        let mut off = Vec::new();
+        for c in 0..8 {
+            for (r, cols) in SUPPORT8.iter().enumerate() {
+                if !cols.contains(&c) {
+                    off.push(8 * c + r);
+                }
+            }
+        }
+        assert_eq!(off, OFF_SUPPORT8);
     }
 
     #[test]

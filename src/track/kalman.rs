@@ -542,13 +542,10 @@ pub fn update_selected<const N: usize, const M: usize>(
     for (m, &c) in sel.iter().enumerate() {
         slot[c] = m;
     }
-    let g = SMatrix::<f64, N, M>::from_fn(|i, m| {
-        if i == sel[m] {
-            1.0 - k[(i, m)]
-        } else {
-            0.0 - k[(i, m)]
-        }
-    });
+    let mut g = SMatrix::<f64, N, M>::from_fn(|i, m| 0.0 - k[(i, m)]);
+    for (m, &i) in sel.iter().enumerate() {
+        g[(i, m)] = 1.0 - k[(i, m)];
+    }
     // A = (I − KH) P = P − K P[sel, :], column by column: A[:, j] = Σₖ (I − KH)[:, k] P[k, j]
     // with k ascending, the order of the dense product.
     let mut a = SMatrix::<f64, N, N>::zeros();
@@ -602,16 +599,17 @@ fn columns_times<const N: usize, const T: usize, const C: usize>(
     a: &SMatrix<f64, N, T>,
     coef: impl Fn(usize, usize) -> f64,
 ) -> SMatrix<f64, N, C> {
-    let mut out = SMatrix::<f64, N, C>::zeros();
-    for c in 0..C {
-        for t in 0..T {
+    // Columns as arrays: the inner loop has a constant length and no bounds checks.
+    let mut out = [[0.0; N]; C];
+    for (c, out_col) in out.iter_mut().enumerate() {
+        for (t, a_col) in a.data.0.iter().enumerate() {
             let w = coef(t, c);
             for i in 0..N {
-                out[(i, c)] += a[(i, t)] * w;
+                out_col[i] += a_col[i] * w;
             }
         }
     }
-    out
+    SMatrix::from_data(nalgebra::ArrayStorage(out))
 }
 
 /// NIS = εᵀ S⁻¹ ε = |L⁻¹ ε|² and ln N(ε; 0, S) with ln det S = 2 Σ ln Lᵢᵢ (log space).

@@ -285,7 +285,6 @@ fn observed_is_finite(o: &Observed) -> bool {
     o.value.iter().chain(o.cov.iter()).all(|v| v.is_finite())
 }
 
-/// `[I 0]` (position) or `[0 I]` (velocity) as a 3x6 observation matrix.
 impl Tracker for CvKalman {
     fn reset(&mut self) {
         *self = Self::new(self.params);

@@ -620,8 +620,9 @@ impl Tracker for HybridTracker {
                 estimate_of(t_s, &x, &p, &info)
             }
             Branch::Imm { .. } => {
-                let (mut x, mut p) = self.imm.combined();
-                self.label_model().predict(&mut x, &mut p, dt_s);
+                let (x, p) = self
+                    .imm
+                    .predicted_position_velocity(&self.label_model(), dt_s);
                 estimate_of(t_s, &x, &p, &info)
             }
         };

@@ -25,7 +25,9 @@
 
 use super::divergence::{guarded_update, DivergenceParams, Observation, Prediction};
 use super::kalman::{self, MotionModel};
-use super::models::{Ca, Ch, Chca, Ct, Cv, Matrix9, Model, ResetTail, State9, ACC, POS, VEL};
+use super::models::{
+    Ca, Ch, Chca, Ct, Cv, Matrix6, Matrix9, Model, ResetTail, State6, State9, ACC, POS, VEL,
+};
 use super::noise::{local_up, BlockStat, NoiseLearner, NoiseParams};
 use super::{
     Estimate, FlightMode, Lateral, Measurement, Observed, SpeedTrend, TrackError, Tracker,
@@ -782,6 +784,35 @@ impl Imm {
     pub fn combined_state(&self) -> State9 {
         weighted_mean::<9>(&self.states().x, &self.mu)
     }
+
+    /// The combined estimate predicted `dt_s` ahead by `model`, position and velocity (the
+    /// leading 6 states and their covariance): what a published prediction reads. Computed
+    /// on the states the model keeps ([`ResetTail`]: 6, or 8 with a horizontal
+    /// acceleration), whose F is bordered by zeros in the 9-state one, so the numbers are
+    /// those of predicting [`Imm::combined`] in 9 states (tested) for a fraction of the work.
+    pub fn predicted_position_velocity(&self, model: &Model, dt_s: f64) -> (State6, Matrix6) {
+        match model {
+            Model::Cv(m) => self.predicted_leading::<6>(m, dt_s),
+            Model::Ct(m) => self.predicted_leading::<6>(m, dt_s),
+            Model::Ch(m) => self.predicted_leading::<6>(m, dt_s),
+            Model::Ca(m) => self.predicted_leading::<8>(m, dt_s),
+            Model::Chca(m) => self.predicted_leading::<8>(m, dt_s),
+        }
+    }
+
+    fn predicted_leading<const K: usize>(
+        &self,
+        model: &impl ResetTail<K>,
+        dt_s: f64,
+    ) -> (State6, Matrix6) {
+        let (mut x, mut p) = self.combined_leading::<K>();
+        let (f, q) = model.leading_fq(dt_s);
+        kalman::predict(&mut x, &mut p, &f, &q);
+        (
+            kalman::rows::<6, _>(&x, 0),
+            kalman::block::<6, 6, _, _>(&p, 0, 0),
+        )
+    }
 }
 
 /// Track initiation and re-initiation, shared by [`ImmTracker`] and the hybrid tracker.
@@ -1227,10 +1258,9 @@ impl Tracker for ImmTracker {
         if !dt_s.is_finite() || dt_s < 0.0 {
             return None;
         }
-        let (mut x, mut p) = self.imm.combined();
-        self.imm
-            .model(self.imm.most_probable())
-            .predict(&mut x, &mut p, dt_s);
+        let (x, p) = self
+            .imm
+            .predicted_position_velocity(self.imm.model(self.imm.most_probable()), dt_s);
         Some(
             self.noise
                 .with_position_bias(estimate_of(t_s, &x, &p, &self.info())),
@@ -1580,5 +1610,22 @@ mod tests {
         assert_eq!(x6, kalman::rows::<6, 9>(&x9, 0));
         assert_eq!(p6, kalman::block::<6, 6, 9, 9>(&p9, 0, 0));
         assert_eq!(imm.combined_leading::<9>(), (x9, p9));
+        // A prediction on the states each model keeps is the 9-state one's position and
+        // velocity, bit for bit, for every model (a CT at an adapted rate too) and horizon.
+        let mut models: Vec<Model> = ImmMode::ALL.iter().map(|&m| *imm.model(m)).collect();
+        models.push(Model::Ct(Ct::turning(true, 0.07)));
+        for model in models {
+            for dt_s in [0.0, 0.4, 1.0, 5.0, 30.0] {
+                let (mut x, mut p) = (x9, p9);
+                model.predict(&mut x, &mut p, dt_s);
+                let (xl, pl) = imm.predicted_position_velocity(&model, dt_s);
+                assert_eq!(xl, kalman::rows::<6, 9>(&x, 0), "{model:?} {dt_s}");
+                assert_eq!(
+                    pl,
+                    kalman::block::<6, 6, 9, 9>(&p, 0, 0),
+                    "{model:?} {dt_s}"
+                );
+            }
+        }
     }
 }

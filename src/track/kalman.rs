@@ -184,15 +184,17 @@ const OFF_SUPPORT8: [usize; 45] = [
 
 /// [`fpf_support6`] for the 8-state blocks (F zero at [`OFF_SUPPORT8`]): 19 non-zeros, 304
 /// products where the dense one takes 1024, the same bits (tested).
-fn fpf_support8(f: &[f64; 64], p: &[f64; 64]) -> Option<[f64; 64]> {
+fn fpf_support8(f: &[f64; 64], p: &[f64; 64], out: &mut [f64; 64]) -> bool {
     // Column-major: F[r, c] is f[8c + r].
     if OFF_SUPPORT8.iter().any(|&i| f[i] != 0.0) {
-        return None;
+        return false;
     }
     let fe = |r: usize, c: usize| f[8 * c + r];
     let mut g = [[0.0; 8]; 8];
     for (gc, pc) in g.iter_mut().zip(p.chunks_exact(8)) {
-        let pc: &[f64; 8] = pc.try_into().ok()?;
+        let Ok(pc) = <&[f64; 8]>::try_from(pc) else {
+            return false;
+        };
         *gc = [
             0.0 + fe(0, 0) * pc[0] + fe(0, 3) * pc[3] + fe(0, 4) * pc[4] + fe(0, 6) * pc[6],
             0.0 + fe(1, 1) * pc[1] + fe(1, 3) * pc[3] + fe(1, 4) * pc[4] + fe(1, 7) * pc[7],
@@ -223,29 +225,30 @@ fn fpf_support8(f: &[f64; 64], p: &[f64; 64]) -> Option<[f64; 64]> {
         column(&[(6, fe(6, 6))]),
         column(&[(7, fe(7, 7))]),
     ];
-    let mut out = [0.0; 64];
     for (o, c) in out.chunks_exact_mut(8).zip(&cols) {
         o.copy_from_slice(c);
     }
-    Some(out)
+    true
 }
 
 /// F P Fᵀ for a 6x6 F zero at [`OFF_SUPPORT6`], both matrices column-major (entry (r, c) at
 /// 6c + r): [`fpf_on_support`] on that support written out, so no support list is walked at
 /// run time. The same terms in the same order, so the same bits as the dense product
-/// (tested); 156 products where the dense one takes 432. `None` when F has a non-zero off
-/// the support.
-fn fpf_support6(f: &[f64; 36], p: &[f64; 36]) -> Option<[f64; 36]> {
+/// (tested); 156 products where the dense one takes 432. Written to `out`; false (and
+/// nothing written) when F has a non-zero off the support.
+fn fpf_support6(f: &[f64; 36], p: &[f64; 36], out: &mut [f64; 36]) -> bool {
     // Column-major: F[r, c] is f[6c + r].
     if OFF_SUPPORT6.iter().any(|&i| f[i] != 0.0) {
-        return None;
+        return false;
     }
     let fe = |r: usize, c: usize| f[6 * c + r];
     // G = F P, column j: G[i, j] = Σₖ F[i, k] P[k, j] over row i's support, k ascending,
     // from zero as the dense product sums.
     let mut g = [[0.0; 6]; 6];
     for (gc, pc) in g.iter_mut().zip(p.chunks_exact(6)) {
-        let pc: &[f64; 6] = pc.try_into().ok()?;
+        let Ok(pc) = <&[f64; 6]>::try_from(pc) else {
+            return false;
+        };
         *gc = [
             0.0 + fe(0, 0) * pc[0] + fe(0, 3) * pc[3] + fe(0, 4) * pc[4],
             0.0 + fe(1, 1) * pc[1] + fe(1, 3) * pc[3] + fe(1, 4) * pc[4],
@@ -273,11 +276,10 @@ fn fpf_support6(f: &[f64; 36], p: &[f64; 36]) -> Option<[f64; 36]> {
         column(&[(3, fe(4, 3)), (4, fe(4, 4))]),
         column(&[(5, fe(5, 5))]),
     ];
-    let mut out = [0.0; 36];
     for (o, c) in out.chunks_exact_mut(6).zip(&cols) {
         o.copy_from_slice(c);
     }
-    Some(out)
+    true
 }
 
 /// Whether every non-zero of `f` lies in `support` (one row slice per row).
@@ -335,20 +337,25 @@ pub fn sparse_fpf<const N: usize>(
     f: &SMatrix<f64, N, N>,
     p: &SMatrix<f64, N, N>,
 ) -> SMatrix<f64, N, N> {
-    if let (Ok(f8), Ok(p8)) = (
+    // The 6- and 8-state blocks write straight into the result (N is one of them exactly
+    // when the slices convert).
+    let mut out = SMatrix::<f64, N, N>::zeros();
+    if let (Ok(f8), Ok(p8), Ok(o8)) = (
         <&[f64; 64]>::try_from(f.as_slice()),
         <&[f64; 64]>::try_from(p.as_slice()),
+        <&mut [f64; 64]>::try_from(out.as_mut_slice()),
     ) {
-        if let Some(out) = fpf_support8(f8, p8) {
-            return SMatrix::<f64, N, N>::from_column_slice(&out);
+        if fpf_support8(f8, p8, o8) {
+            return out;
         }
     }
-    if let (Ok(f6), Ok(p6)) = (
+    if let (Ok(f6), Ok(p6), Ok(o6)) = (
         <&[f64; 36]>::try_from(f.as_slice()),
         <&[f64; 36]>::try_from(p.as_slice()),
+        <&mut [f64; 36]>::try_from(out.as_mut_slice()),
     ) {
-        if let Some(out) = fpf_support6(f6, p6) {
-            return SMatrix::<f64, N, N>::from_column_slice(&out);
+        if fpf_support6(f6, p6, o6) {
+            return out;
         }
     }
     if N < 9 {

@@ -285,6 +285,20 @@ fn observed_is_finite(o: &Observed) -> bool {
     o.value.iter().chain(o.cov.iter()).all(|v| v.is_finite())
 }
 
+/// `[I 0]` (position) or `[0 I]` (velocity) as a 3x6 observation matrix.
+///
+/// The updates go through [`kalman::update`], which finds the selection in H, not straight
+/// to [`kalman::update_selected`]: that one is inlined where it is called, and its three
+/// copies in [`CvKalman`]'s update made the fleet replay 6 % slower on one core (2.20
+/// against 2.07 CPU-s, five runs each), though they ran 2 % fewer instructions.
+fn h_block(offset: usize) -> SMatrix<f64, 3, 6> {
+    let mut h = SMatrix::<f64, 3, 6>::zeros();
+    for i in 0..3 {
+        h[(i, offset + i)] = 1.0;
+    }
+    h
+}
+
 impl Tracker for CvKalman {
     fn reset(&mut self) {
         *self = Self::new(self.params);
@@ -341,7 +355,7 @@ impl Tracker for CvKalman {
                 r.fixed_view_mut::<3, 3>(0, 0).copy_from(&pos.cov);
                 r.fixed_view_mut::<3, 3>(3, 3).copy_from(&vel.cov);
                 let inn: Innovation<6> =
-                    kalman::update_selected(&mut x, &mut p, &z, &kalman::blocks6(0, 3), &r)?;
+                    kalman::update(&mut x, &mut p, &z, &Matrix6::identity(), &r)?;
                 self.nis
                     .push(inn.nis, super::nis::measured_dof(Some(pos), Some(vel)));
                 Some((
@@ -350,25 +364,13 @@ impl Tracker for CvKalman {
                 ))
             }
             (Some(pos), None) => {
-                let inn = kalman::update_selected(
-                    &mut x,
-                    &mut p,
-                    &pos.value,
-                    &kalman::block3(0),
-                    &pos.cov,
-                )?;
+                let inn = kalman::update(&mut x, &mut p, &pos.value, &h_block(0), &pos.cov)?;
                 self.nis
                     .push(inn.nis, super::nis::measured_dof(Some(pos), None));
                 Some((inn.residual, inn.s))
             }
             (None, Some(vel)) => {
-                let inn = kalman::update_selected(
-                    &mut x,
-                    &mut p,
-                    &vel.value,
-                    &kalman::block3(3),
-                    &vel.cov,
-                )?;
+                let inn = kalman::update(&mut x, &mut p, &vel.value, &h_block(3), &vel.cov)?;
                 self.nis
                     .push(inn.nis, super::nis::measured_dof(None, Some(vel)));
                 None

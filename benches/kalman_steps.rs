@@ -84,6 +84,18 @@ fn cv_update(c: &mut Criterion) {
         })
     });
     // Through the trait (`fq`, then `kalman::predict`, which keeps the dense product below 9x9).
+    // F P Fᵀ alone: nalgebra's dense product against the one written out on the models'
+    // 6-state support (`kalman::sparse_fpf`, the same bits).
+    let f6 = MotionModel::<6>::f(&cv, 0.5);
+    g.bench_function("fpf-dense", |b| {
+        b.iter(|| {
+            let p = black_box(&p);
+            f6 * p * f6.transpose()
+        })
+    });
+    g.bench_function("fpf-support", |b| {
+        b.iter(|| kalman::sparse_fpf(&f6, black_box(&p)))
+    });
     g.bench_function("predict-trait", |b| {
         b.iter(|| {
             let (mut x, mut p) = (x, p);

@@ -337,25 +337,27 @@ pub fn sparse_fpf<const N: usize>(
     f: &SMatrix<f64, N, N>,
     p: &SMatrix<f64, N, N>,
 ) -> SMatrix<f64, N, N> {
-    // The 6- and 8-state blocks write straight into the result (N is one of them exactly
-    // when the slices convert).
-    let mut out = SMatrix::<f64, N, N>::zeros();
-    if let (Ok(f8), Ok(p8), Ok(o8)) = (
-        <&[f64; 64]>::try_from(f.as_slice()),
-        <&[f64; 64]>::try_from(p.as_slice()),
-        <&mut [f64; 64]>::try_from(out.as_mut_slice()),
-    ) {
-        if fpf_support8(f8, p8, o8) {
-            return out;
+    // The 6- and 8-state blocks write straight into the result (the slices convert exactly
+    // when N is 6 or 8).
+    if N == 6 || N == 8 {
+        let mut out = SMatrix::<f64, N, N>::zeros();
+        if let (Ok(f8), Ok(p8), Ok(o8)) = (
+            <&[f64; 64]>::try_from(f.as_slice()),
+            <&[f64; 64]>::try_from(p.as_slice()),
+            <&mut [f64; 64]>::try_from(out.as_mut_slice()),
+        ) {
+            if fpf_support8(f8, p8, o8) {
+                return out;
+            }
         }
-    }
-    if let (Ok(f6), Ok(p6), Ok(o6)) = (
-        <&[f64; 36]>::try_from(f.as_slice()),
-        <&[f64; 36]>::try_from(p.as_slice()),
-        <&mut [f64; 36]>::try_from(out.as_mut_slice()),
-    ) {
-        if fpf_support6(f6, p6, o6) {
-            return out;
+        if let (Ok(f6), Ok(p6), Ok(o6)) = (
+            <&[f64; 36]>::try_from(f.as_slice()),
+            <&[f64; 36]>::try_from(p.as_slice()),
+            <&mut [f64; 36]>::try_from(out.as_mut_slice()),
+        ) {
+            if fpf_support6(f6, p6, o6) {
+                return out;
+            }
         }
     }
     if N < 9 {

@@ -617,9 +617,6 @@ pub struct Gate {
     end: usize,
     /// Samples held (at most the longest window), the newest `len` before `end`.
     len: usize,
-    /// The oldest held sample within `max_window_s` of the newest: every window starts at
-    /// or after it. Found once per push ([`Gate::window_start_of_newest`]).
-    window_start: usize,
     /// The newest sample's heading wrapped to (−π, π], rad: what the next one unwraps
     /// from.
     newest_angle_rad: f64,
@@ -640,7 +637,6 @@ impl Gate {
             params: super::shared::shared(params),
             end: 0,
             len: 0,
-            window_start: 0,
             newest_angle_rad: 0.0,
             reading: GateReading::default(),
             turn_start_s: None,
@@ -657,7 +653,6 @@ impl Gate {
     pub fn clear(&mut self) {
         self.len = 0;
         self.end = 0;
-        self.window_start = 0;
         self.reading = GateReading::default();
         self.turn_start_s = None;
         self.vrate_noise = DiffNoise::default();
@@ -713,30 +708,26 @@ impl Gate {
 
     /// The newest `n` samples within `max_window_s` of the newest, oldest first.
     fn recent(&self, n: usize) -> &[Sample] {
-        let from = self
-            .end
-            .saturating_sub(n.min(self.len))
-            .max(self.window_start);
-        self.samples.get(from..self.end).unwrap_or(&[])
-    }
-
-    /// The index of the oldest held sample within `max_window_s` of the newest (`end` when
-    /// none is held). Samples are in time order, so the window starts after the newest one
-    /// older than the cut: scanned from the newest, which touches only samples the tests
-    /// read next (a binary search probed the middle of the buffer, out of cache at fleet
-    /// scale). Once per push, where each window scanned for itself before (five scans of
-    /// up to 24 samples a report).
-    fn window_start_of_newest(&self) -> usize {
-        let from = self.end.saturating_sub(self.len);
-        let held = self.samples.get(from..self.end).unwrap_or(&[]);
+        let k = n.min(self.len);
+        let held = self
+            .samples
+            .get(self.end.saturating_sub(k)..self.end)
+            .unwrap_or(&[]);
         let Some(newest) = held.last() else {
-            return self.end;
+            return held;
         };
         let oldest_t = newest.t_s - self.params.max_window_s;
-        from + held
+        // Samples are in time order: the window starts after the newest one older than the
+        // cut. Scanned from the newest, which touches only samples the caller reads next; a
+        // binary search probed the middle of the buffer, which at fleet scale is out of cache
+        // (`Gate::push` went from 11.3 to 8.4 % of a 1000-aircraft replay's profile). (Finding
+        // the cut once per push instead of per window saved nothing measurable and took 8
+        // bytes the gate's memory budget does not have, `tests/memory_budget.rs`.)
+        let first = held
             .iter()
             .rposition(|s| s.t_s < oldest_t)
-            .map_or(0, |i| i + 1)
+            .map_or(0, |i| i + 1);
+        held.get(first..).unwrap_or(&[])
     }
 
     /// Adds a velocity at `t_s` and re-evaluates every test. `measured`: the velocity comes
@@ -809,7 +800,6 @@ impl Gate {
         }
         self.end += 1;
         self.len = (self.len + 1).min(self.capacity());
-        self.window_start = self.window_start_of_newest();
         self.newest_angle_rad = angle_rad;
         self.evaluate();
         &self.reading

@@ -183,7 +183,10 @@ const OFF_SUPPORT8: [usize; 45] = [
 ];
 
 /// [`fpf_support6`] for the 8-state blocks (F zero at [`OFF_SUPPORT8`]): 19 non-zeros, 304
-/// products where the dense one takes 1024, the same bits (tested).
+/// products where the dense one takes 1024, the same bits (tested). Written out per size
+/// rather than sharing the G Fᵀ half with [`fpf_support6`]: passed as a list of per-row
+/// terms, that half was not unrolled (2.5 % more instructions on the fleet, 49 ns against
+/// 42 ns for 6 states).
 fn fpf_support8(f: &[f64; 64], p: &[f64; 64], out: &mut [f64; 64]) -> bool {
     // Column-major: F[r, c] is f[8c + r].
     if OFF_SUPPORT8.iter().any(|&i| f[i] != 0.0) {
@@ -847,24 +850,15 @@ mod tests {
 
     #[test]
     fn the_off_support_lists_are_the_complements_of_the_supports() {
-        let mut off = Vec::new();
-        for c in 0..6 {
-            for (r, cols) in SUPPORT6.iter().enumerate() {
-                if !cols.contains(&c) {
-                    off.push(6 * c + r);
-                }
-            }
+        // Column-major indices n·c + r of the entries (r, c) outside `support`.
+        fn off(support: &[&[usize]]) -> Vec<usize> {
+            let n = support.len();
+            (0..n * n)
+                .filter(|i| !support[i % n].contains(&(i / n)))
+                .collect()
         }
-        assert_eq!(off, OFF_SUPPORT6);
-        let mut off = Vec::new();
-        for c in 0..8 {
-            for (r, cols) in SUPPORT8.iter().enumerate() {
-                if !cols.contains(&c) {
-                    off.push(8 * c + r);
-                }
-            }
-        }
-        assert_eq!(off, OFF_SUPPORT8);
+        assert_eq!(off(&SUPPORT6), OFF_SUPPORT6);
+        assert_eq!(off(&SUPPORT8), OFF_SUPPORT8);
     }
 
     #[test]

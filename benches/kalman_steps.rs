@@ -133,7 +133,7 @@ fn imm_filtering(c: &mut Criterion) {
                     kalman::symmetrise(&(f * p * f.transpose() + m.q(dt))),
                 );
                 if let Ok(inn) = kalman::update_dense(&mut x1, &mut p1, &z, &h, &r) {
-                    *o = inn.log_likelihood + p1[(0, 0)];
+                    *o = inn.log_likelihood() + p1[(0, 0)];
                 }
             }
             out

@@ -351,7 +351,7 @@ fn guarded_update_m<const N: usize, const M: usize>(
         x,
         p,
         nis: inn.nis,
-        log_likelihood: inn.log_likelihood,
+        log_likelihood: inn.log_likelihood(),
         diverged,
         run,
         adapt,

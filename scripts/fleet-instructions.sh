@@ -15,15 +15,8 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 command -v valgrind > /dev/null || { echo "needs valgrind (Debian: apt-get install valgrind)" >&2; exit 1; }
-bin=${BIN:-target/release/adsb-tracker}
-if [ -z "${BIN:-}" ]; then
-  cargo build --release --locked --bins > /dev/null
-fi
-work=${FLEET_DIR:-target/fleet}/fleet
-mkdir -p "$work"
-[ -f "$work/fleet.beast" ] || "$bin" simulate fleet --out "$work/fleet" > /dev/null
-part=$work/quarter.beast
-[ -f "$part" ] || head -c 14000000 "$work/fleet.beast" > "$part"
+# shellcheck source=scripts/fleet-quarter.sh
+. scripts/fleet-quarter.sh
 trackers=("$@")
 [ ${#trackers[@]} -gt 0 ] || trackers=(hybrid kalman-cv)
 out=$(mktemp -d)

@@ -13,15 +13,8 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 base=${BASE:?set BASE to the adsb-tracker binary to compare with}
-bin=${BIN:-target/release/adsb-tracker}
-if [ -z "${BIN:-}" ]; then
-  cargo build --release --locked --bins > /dev/null
-fi
-work=${FLEET_DIR:-target/fleet}/fleet
-mkdir -p "$work"
-[ -f "$work/fleet.beast" ] || "$bin" simulate fleet --out "$work/fleet" > /dev/null
-part=$work/quarter.beast
-[ -f "$part" ] || head -c 14000000 "$work/fleet.beast" > "$part"
+# shellcheck source=scripts/fleet-quarter.sh
+. scripts/fleet-quarter.sh
 trackers=("$@")
 [ ${#trackers[@]} -gt 0 ] || trackers=(hybrid kalman-cv)
 out=$(mktemp -d)

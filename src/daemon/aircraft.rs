@@ -291,7 +291,7 @@ impl Aircraft {
         match self.tracker.update(&m) {
             // A report without a position long after the track's last one ends the track
             // (every tracker's `max_gap_s` rule) rather than updating it: no estimate left.
-            Ok(()) if m.position.is_none() && self.tracker.estimate().is_none() => {
+            Ok(()) if m.position.is_none() && !self.tracker.has_track() => {
                 if let Some(p) = before {
                     self.ended = Some(Box::new(p));
                 }
@@ -684,6 +684,63 @@ mod tests {
         Poisoned {
             inner: CvKalman::new(CvParams::default()),
             updates: 0,
+        }
+    }
+
+    /// `has_track` answers as `estimate().is_some()` would, for every tracker: before the
+    /// first position, through a track, after a gap that ends it, and after a reset.
+    #[test]
+    fn every_tracker_has_a_track_exactly_when_it_has_an_estimate() {
+        let base = crate::config::Config::default_config()
+            .map(|c| c.tracker)
+            .unwrap_or_else(|e| panic!("{e}"));
+        let position = |t_s: f64, east_m: f64| Measurement {
+            t_s,
+            position: Some(Observed {
+                value: Vector3::new(east_m, 0.0, 10_000.0),
+                cov: Matrix3::identity() * 25.0,
+            }),
+            velocity: None,
+        };
+        let velocity = |t_s: f64| Measurement {
+            t_s,
+            position: None,
+            velocity: Some(Observed {
+                value: Vector3::new(200.0, 0.0, 0.0),
+                cov: Matrix3::identity(),
+            }),
+        };
+        for name in crate::config::ALGORITHMS {
+            let mut cfg = base.clone();
+            cfg.algorithm = (*name).to_string();
+            let mut t = crate::daemon::build_tracker(&cfg);
+            let mut answers = Vec::new();
+            let mut ask = |t: &dyn Tracker| {
+                assert_eq!(t.has_track(), t.estimate().is_some(), "{name}");
+                answers.push(t.has_track());
+            };
+            ask(&*t);
+            t.update(&velocity(0.0)).ok();
+            ask(&*t);
+            for k in 1..=20 {
+                let t_s = f64::from(k) * 0.5;
+                t.update(&position(t_s, 200.0 * t_s)).ok();
+                ask(&*t);
+                t.update(&velocity(t_s + 0.25)).ok();
+                ask(&*t);
+            }
+            // Ten minutes without a report: a velocity alone does not carry the track on.
+            t.update(&velocity(610.0)).ok();
+            ask(&*t);
+            t.update(&position(610.5, 0.0)).ok();
+            ask(&*t);
+            t.reset();
+            ask(&*t);
+            let expected: Vec<bool> = std::iter::repeat_n(false, 2)
+                .chain(std::iter::repeat_n(true, 40))
+                .chain([false, true, false])
+                .collect();
+            assert_eq!(answers, expected, "{name}");
         }
     }
 

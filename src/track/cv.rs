@@ -400,6 +400,10 @@ impl Tracker for CvKalman {
             .map(|t| self.estimate_of(t.t_s, &t.x, &t.p))
     }
 
+    fn has_track(&self) -> bool {
+        self.track.is_some()
+    }
+
     fn predict(&self, t_s: f64) -> Option<Estimate> {
         let track = self.track.as_ref()?;
         let dt_s = t_s - track.t_s;

@@ -604,6 +604,10 @@ impl Tracker for HybridTracker {
         Some(self.noise.with_position_bias(est))
     }
 
+    fn has_track(&self) -> bool {
+        self.init.track_t_s().is_some()
+    }
+
     /// Extrapolates by the current label's model (paper 002 §1.3), its Q added; CT at the
     /// turn rate in use (the gate's when `adapt_turn_rate`).
     fn predict(&self, t_s: f64) -> Option<Estimate> {

@@ -1250,6 +1250,10 @@ impl Tracker for ImmTracker {
         )
     }
 
+    fn has_track(&self) -> bool {
+        self.init.track_t_s().is_some()
+    }
+
     /// Extrapolates the combined estimate by the most probable mode's model (paper 002
     /// §1.3), its process noise added.
     fn predict(&self, t_s: f64) -> Option<Estimate> {

@@ -217,6 +217,14 @@ pub trait Tracker: Send {
     /// The current (filtered) estimate, `None` before initiation.
     fn estimate(&self) -> Option<Estimate>;
 
+    /// Whether there is a track: [`Tracker::estimate`] would be `Some`. The daemon asks after
+    /// every report without a position (did a long gap end the track?), and forming a whole
+    /// estimate to answer cost 1-2 % of the fleet replay's instructions; the trackers with a
+    /// cheaper answer give it.
+    fn has_track(&self) -> bool {
+        self.estimate().is_some()
+    }
+
     /// The estimate extrapolated by the current model to `t_s` (>= the track's time), with the
     /// process noise added to its covariance; `None` before initiation.
     fn predict(&self, t_s: f64) -> Option<Estimate>;

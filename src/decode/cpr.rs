@@ -334,6 +334,26 @@ pub fn haversine_m(lat1_deg: f64, lon1_deg: f64, lat2_deg: f64, lon2_deg: f64) -
     2.0 * EARTH_MEAN_RADIUS_M * h.clamp(0.0, 1.0).sqrt().asin()
 }
 
+/// Whether (lat, lon) is within `allowed_m` of (lat0, lon0) by [`haversine_m`], the same
+/// answer for every input (NaN: no), usually without its trigonometry.
+///
+/// A path along the meridian and then along a parallel is at least as long as the great
+/// circle, and a parallel's degree is at most the equator's: so R (|Δφ| + |Δλ|), in radians,
+/// bounds the distance from above with one multiplication. A report half a second after the
+/// last one is well inside that bound's allowance; only a fix near the limit (or across the
+/// antimeridian, where |Δλ| is near 360°) takes the haversine. The bound is compared with a
+/// margin of 10⁻⁹ of itself, a million times the haversine's rounding, so that a computed
+/// haversine could never exceed the allowance where the bound does not.
+fn within_m(lat0_deg: f64, lon0_deg: f64, lat_deg: f64, lon_deg: f64, allowed_m: f64) -> bool {
+    let bound_m = EARTH_MEAN_RADIUS_M
+        * ((lat_deg - lat0_deg).abs() + (lon_deg - lon0_deg).abs()).to_radians();
+    if bound_m * (1.0 + 1e-9) <= allowed_m {
+        return true;
+    }
+    let distance_m = haversine_m(lat0_deg, lon0_deg, lat_deg, lon_deg);
+    !(distance_m.is_nan() || distance_m > allowed_m)
+}
+
 /// Tuning of [`CprDecoder`].
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct CprConfig {
@@ -608,8 +628,7 @@ impl CprDecoder {
                 self.config.max_speed_mps
             };
             let allowed_m = max_speed_mps * (t_s - last.t_s) + self.config.position_slack_m;
-            let distance_m = haversine_m(last.lat_deg, last.lon_deg, lat_deg, lon_deg);
-            if distance_m.is_nan() || distance_m > allowed_m {
+            if !within_m(last.lat_deg, last.lon_deg, lat_deg, lon_deg, allowed_m) {
                 self.consecutive_rejections = self.consecutive_rejections.saturating_add(1);
                 if self.consecutive_rejections >= self.config.rejections_before_reset {
                     self.last = None;
@@ -974,6 +993,51 @@ mod tests {
         };
         assert!(global);
         assert!(close((lat_deg, lon_deg), (-43.48564, 172.53942), 1e-5));
+    }
+
+    /// The shortcut answers as the haversine does: random pairs over the globe, from a few
+    /// metres to across the antimeridian, against allowances on both sides of the distance
+    /// and at it.
+    #[test]
+    fn within_is_the_haversine_decision() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand::rngs::StdRng::seed_from_u64(11);
+        let mut shortcut = 0;
+        for _ in 0..200_000 {
+            let lat0: f64 = rng.gen_range(-89.9..89.9);
+            let lon0: f64 = rng.gen_range(-180.0..180.0);
+            let step = 10f64.powi(rng.gen_range(-5..2));
+            let lat = (lat0 + rng.gen_range(-1.0..1.0) * step).clamp(-90.0, 90.0);
+            let lon = match rng.gen_range(0..8) {
+                0 => -lon0.signum() * 179.99,
+                _ => lon0 + rng.gen_range(-1.0..1.0) * step,
+            };
+            let d = haversine_m(lat0, lon0, lat, lon);
+            for allowed in [
+                d * rng.gen_range(0.5..3.0),
+                d,
+                d * (1.0 + 1e-15),
+                d * (1.0 - 1e-15),
+                d.next_up(),
+                d.next_down(),
+                0.0,
+                -1.0,
+            ] {
+                let expected = !(d.is_nan() || d > allowed);
+                assert_eq!(
+                    within_m(lat0, lon0, lat, lon, allowed),
+                    expected,
+                    "{lat0} {lon0} {lat} {lon} {allowed}"
+                );
+            }
+            let bound =
+                EARTH_MEAN_RADIUS_M * ((lat - lat0).abs() + (lon - lon0).abs()).to_radians();
+            shortcut += usize::from(bound * (1.0 + 1e-9) <= 3.0 * d);
+        }
+        // The shortcut is taken for a good share of these (all of a real feed's, nearly).
+        assert!(shortcut > 50_000, "{shortcut}");
+        assert!(!within_m(f64::NAN, 0.0, 0.0, 0.0, 1e9));
+        assert!(!within_m(0.0, 0.0, 0.0, f64::NAN, 1e9));
     }
 
     #[test]

@@ -8,8 +8,12 @@
 //!   updates: its covariance there is a third of what the data show.
 //! - The hybrid and the IMM learn each aircraft's noise (`track::noise`): on AFR34ZG
 //!   (declares nothing, so R starts from NUCp's 38 m per axis) the hybrid's NIS per degree of
-//!   freedom moves from 0.04 to about 0.1 (the IMM's from 0.08 to 0.44) and its position
-//!   sigma from 7 m to about 2.4 m; on LAX NACp 10 from 3.5 to about 2.
+//!   freedom moves from 0.04 to about 0.3 (the IMM's from 0.08 to 0.46) and its position
+//!   sigma from 7 m to about 1.6 m; on LAX NACp 10 from 3.5 to about 2. A third is what
+//!   honest horizontal positions give when the other components' innovations are zero
+//!   (altitude, vertical rate and, at cruise, velocity hold still between quantisation
+//!   steps). Before the learner winsorised its samples (`NoiseParams::outlier_ratio`), a
+//!   few outlying reports held the hybrid's learned noise up and its NIS/dof at 0.1.
 //! - The windowed NIS is still seldom inside its band (under 25 %): the innovations are not
 //!   Gaussian white noise. They are quantised (constant altitude,
 //!   vertical rate and, at cruise, velocity steps) on AFR34ZG, and heavy-tailed under LAX's
@@ -38,7 +42,7 @@ fn within(what: &str, x: Option<f64>, lo: f64, hi: f64) {
 #[test]
 fn afr34zg_is_rarely_flagged() {
     for (tracker, nis_dof, sigma_m) in [
-        ("hybrid", (0.08, 0.2), (1.5, 3.5)),
+        ("hybrid", (0.25, 0.45), (1.2, 2.5)),
         ("kalman-cv", (0.05, 0.2), (6.0, 9.0)),
         ("imm", (0.25, 0.7), (1.0, 3.0)),
     ] {

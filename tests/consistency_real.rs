@@ -14,7 +14,8 @@
 //!   (altitude, vertical rate and, at cruise, velocity hold still between quantisation
 //!   steps). Before the learner winsorised its samples (`NoiseParams::outlier_ratio`), a
 //!   few outlying reports held the hybrid's learned noise up and its NIS/dof at 0.1.
-//! - The windowed NIS is still seldom inside its band (under 25 %): the innovations are not
+//! - The windowed NIS is still seldom inside its band (under 25 % here, a third at most on
+//!   any recording in docs/evaluation.md): the innovations are not
 //!   Gaussian white noise. They are quantised (constant altitude,
 //!   vertical rate and, at cruise, velocity steps) on AFR34ZG, and heavy-tailed under LAX's
 //!   approximate timing (docs/evaluation.md).

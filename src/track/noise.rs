@@ -25,18 +25,18 @@
 //!   standard error ([`NoiseScale::effective`]): a declaration the data do not contradict is
 //!   used as it is.
 //! - **Outliers**: a plain mean of squares belongs to its largest terms. Real feeds have
-//!   a few reports from another error process (a CPR decode off by a zone, a GNSS glitch,
-//!   a late frame), and one of them, even clamped at `max_scale`, outweighs a hundred
-//!   ordinary ones when the true λ is small. So εᵀε is first winsorised at
+//!   a few reports from another error process (a position from a bad CPR pair, a GNSS
+//!   glitch, a late frame), and one of them, even clamped at `max_scale`, outweighs a
+//!   hundred ordinary ones when the true λ is small. So εᵀε is first winsorised at
 //!   [`NoiseParams::outlier_ratio`] times its predicted size Tr(S), a Huber-type robust
 //!   scale (Huber 1981, *Robust Statistics*, §5.6): an outlier then counts as an unlucky
 //!   draw of the noise being learned. A persistent rise of the noise still raises λ, by up
-//!   to (ratio − 1)/(window + prior weight) of itself a report, 3.6 % at the defaults. Measured on
-//!   AFR34ZG (nothing declared, the NUCp fall-back σ₀ about 40 m per axis): most position
-//!   samples were about 0.02, and λ sat at 0.1-0.35, held up by the few at the clamp; the
-//!   median horizontal position NIS per degree of freedom of the hybrid's CV filter went
-//!   from 0.29 to 0.72 with the cap, and its 10-report windows inside their 95 % band from
-//!   31 % to 49 %.
+//!   to (ratio − 1)/(window + prior weight) of itself a report, 3.6 % at the defaults.
+//!   Measured on AFR34ZG (nothing declared, the NUCp fall-back σ₀ about 40 m per axis):
+//!   most position samples were about 0.02, and λ sat at 0.1-0.35, held up by the few at
+//!   the clamp. With the cap, the hybrid's CV filter's horizontal position NIS per degree
+//!   of freedom (a probe: εᵀε / (Tr S / 2)) went from a median of 0.29 to 0.72, and its
+//!   windows of 10 position reports inside their 95 % band from 31 % to 49 %.
 //! - **Window**: an exponentially weighted mean over about [`NoiseParams::window`] reports
 //!   (50 s of ADS-B at 2 Hz): slow against a manoeuvre's onset, fast against a flight.
 //! - **Correlated error** (a consider covariance, after Schmidt 1966 and Bierman 1977

@@ -166,6 +166,9 @@ pub struct HybridConfig {
     pub learn_noise: bool,
     /// Bounds of the learned factor on the declared covariance.
     pub noise_scale_limits: [f64; 2],
+    /// An innovation's εᵀε is winsorised at this many times Tr(S) before the learner
+    /// averages it (`NoiseParams::outlier_ratio`).
+    pub noise_outlier_ratio: f64,
 }
 
 /// `v` finite and within `lo..=hi` (`lo_open`: `lo` itself excluded).
@@ -500,6 +503,13 @@ impl TrackerConfig {
             enabled: h.learn_noise,
             min_scale: check(key, lo, 0.0, true, 1.0)?,
             max_scale: check(key, hi, 1.0, false, 1.0e4)?,
+            outlier_ratio: check(
+                "tracker.hybrid.noise_outlier_ratio",
+                h.noise_outlier_ratio,
+                1.0,
+                false,
+                1.0e6,
+            )?,
             ..NoiseParams::default()
         })
     }
@@ -551,6 +561,17 @@ mod tests {
         assert_eq!((p.divergence.r, p.divergence.confirm), (2.0, 1));
         assert_eq!(p.imm.divergence, p.divergence);
         assert_eq!(p.min_manoeuvre_dwell_s, 8.0);
+        let robust = |toml: &str| {
+            Config::from_toml_str(toml)
+                .unwrap()
+                .tracker
+                .hybrid_params(false)
+                .unwrap()
+                .noise
+                .outlier_ratio
+        };
+        assert_eq!(robust(""), 5.0);
+        assert_eq!(robust("[tracker.hybrid]\nnoise_outlier_ratio = 8.0\n"), 8.0);
         assert_eq!(c.cv_params().unwrap().divergence_r, 2.0);
         // The transition matrix built from them: CV kept over 1 s with exp(-1/60).
         let imm = crate::track::imm::Imm::new(p.imm);
@@ -614,6 +635,10 @@ mod tests {
             (
                 "[tracker.hybrid]\nturn_rate_limits_deg_s = [3.0, 1.0]\n",
                 "tracker.hybrid.turn_rate_limits_deg_s",
+            ),
+            (
+                "[tracker.hybrid]\nnoise_outlier_ratio = 0.5\n",
+                "tracker.hybrid.noise_outlier_ratio",
             ),
             (
                 "[tracker.hybrid]\nentry_probability = 1.5\n",

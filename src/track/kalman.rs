@@ -476,14 +476,18 @@ fn all_finite(values: &[f64]) -> bool {
     (lanes[0] + lanes[1]) + (lanes[2] + lanes[3]) + tail == 0.0
 }
 
-/// Solves L Lᵀ X = B in place for the Cholesky factor `l` (lower triangle read), exactly as
-/// nalgebra's `Cholesky::solve` does it (the same operations in the same order, so the same
-/// result: forward substitution by column updates, back substitution by dot products summed
-/// in ascending order), without its generic views.
+/// Solves L Lᵀ X = B in place for the Cholesky factor `l` (lower triangle read): forward
+/// substitution by column updates, back substitution by dot products summed in ascending
+/// order, as nalgebra's `Cholesky::solve` does it, without its generic views. Each division
+/// by Lᵢᵢ is a product with its reciprocal, computed once: M divisions where the
+/// substitutions took 2 M C (36 for a 3-vector report on a 6-state filter, a quarter of the
+/// update's time). A product with a rounded reciprocal differs from the quotient by at most
+/// an ulp, so X is nalgebra's to rounding (tested through [`update_selected`]).
 fn cholesky_solve_mut<const M: usize, const C: usize>(
     l: &SMatrix<f64, M, M>,
     b: &mut SMatrix<f64, M, C>,
 ) {
+    let inv_diag: [f64; M] = std::array::from_fn(|i| 1.0 / l[(i, i)]);
     for c in 0..C {
         let mut y = [0.0; M];
         for (i, yi) in y.iter_mut().enumerate() {
@@ -491,7 +495,7 @@ fn cholesky_solve_mut<const M: usize, const C: usize>(
         }
         // L y = b.
         for i in 0..M {
-            let coeff = y[i] / l[(i, i)];
+            let coeff = y[i] * inv_diag[i];
             y[i] = coeff;
             for k in i + 1..M {
                 y[k] += -coeff * l[(k, i)];
@@ -503,7 +507,7 @@ fn cholesky_solve_mut<const M: usize, const C: usize>(
             for k in i + 1..M {
                 dot += l[(k, i)] * y[k];
             }
-            y[i] = (y[i] - dot) / l[(i, i)];
+            y[i] = (y[i] - dot) * inv_diag[i];
         }
         for (i, yi) in y.iter().enumerate() {
             b[(i, c)] = *yi;
@@ -547,8 +551,9 @@ pub const fn blocks6(a: usize, b: usize) -> [usize; 6] {
 ///
 /// With H selecting, H x = x[sel], B = P Hᵀ = P[:, sel] and S = P[sel, sel] + R are copies,
 /// not products (Bar-Shalom et al. 2001, eq. 5.2.3-9 to -11). S is Cholesky-factored
-/// (S = L Lᵀ) and K = B S⁻¹ solves S Kᵀ = Bᵀ (never inverting S); x and K are the dense
-/// update's bit for bit.
+/// (S = L Lᵀ) and K = B S⁻¹ solves S Kᵀ = Bᵀ (never inverting S, and dividing by L's
+/// diagonal once: [`cholesky_solve_mut`]); the residual, S, the NIS and the likelihood are
+/// the dense update's bit for bit, K and x to rounding.
 ///
 /// The covariance is Joseph's form (Bar-Shalom et al. 2001, eq. 5.2.3-18),
 /// P ← (I − KH) P (I − KH)ᵀ + K R Kᵀ, which stays symmetric positive semi-definite for any
@@ -761,10 +766,11 @@ mod tests {
         h
     }
 
-    /// The specialised update against the dense one: the same innovation, NIS, likelihood
-    /// and state bit for bit (the same gain), the same errors, and the covariance within
-    /// 1e-12 of its scale (the largest entry of P before and after): the two evaluate Joseph's
-    /// form in a different order.
+    /// The specialised update against the dense one: the same innovation, NIS and
+    /// likelihood bit for bit, the same errors, the state within 1e-9 of its step (the gain
+    /// is computed with reciprocals of L's diagonal) and the covariance within 1e-12 of its
+    /// scale (the largest entry of P before and after): the two evaluate Joseph's form in a
+    /// different order.
     fn assert_selected_equals_dense<const N: usize, const M: usize>(seed: u64, sel: [usize; M]) {
         let mut rng = StdRng::seed_from_u64(seed);
         let p0 = random_spd::<N>(&mut rng, 3.0);
@@ -784,7 +790,14 @@ mod tests {
         let a = update_selected(&mut x1, &mut p1, &z, &sel, &r);
         let b = update_dense(&mut x2, &mut p2, &z, &h, &r);
         assert_eq!(a, b, "innovation, seed {seed}");
-        assert_eq!(x1, x2, "x, seed {seed}");
+        // The gain is nalgebra's to rounding (reciprocals for quotients), which S's
+        // condition (up to 1e12 here) amplifies: 3e-12 of the step K ε seen, bound 1e-9.
+        let moved = (x2 - x0).amax().max(f64::MIN_POSITIVE);
+        let err_x = (x1 - x2).amax() / moved;
+        assert!(
+            err_x <= 1e-9,
+            "x differs by {err_x:e} of its step, seed {seed}"
+        );
         let scale = p0.amax().max(p2.amax());
         let err = (p1 - p2).amax() / scale;
         assert!(
@@ -1040,7 +1053,10 @@ mod tests {
             let sum: f64 = l_diag.iter().map(|d| d.ln()).sum();
             let expected = -0.5 * (inn.nis + 6.0 * LN_2PI + 2.0 * sum);
             let got = inn.log_likelihood();
-            assert!((got - expected).abs() <= 1e-13 * expected.abs().max(1.0), "{l_diag}");
+            assert!(
+                (got - expected).abs() <= 1e-13 * expected.abs().max(1.0),
+                "{l_diag}"
+            );
         }
     }
 

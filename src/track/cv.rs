@@ -317,8 +317,8 @@ impl Tracker for CvKalman {
             }
         }
         // The state is copied once, into the working x and P (the track keeps the old one
-        // until the update succeeds), not as a whole `Track` first.
-        let Some((track_t_s, mut x, mut p)) = self.track.as_ref().map(|t| (t.t_s, t.x, t.p)) else {
+        // until the update succeeds), and written back in place.
+        let Some(track_t_s) = self.track.as_ref().map(|t| t.t_s) else {
             match (&m.position, &m.velocity) {
                 (Some(pos), vel) => self.initiate(m.t_s, pos, vel.as_ref()),
                 (None, Some(vel)) => {
@@ -329,6 +329,10 @@ impl Tracker for CvKalman {
                 (None, None) => {}
             }
             return Ok(());
+        };
+        let (mut x, mut p) = match &self.track {
+            Some(t) => (t.x, t.p),
+            None => return Ok(()),
         };
 
         self.model.predict(&mut x, &mut p, m.t_s - track_t_s);
@@ -390,7 +394,11 @@ impl Tracker for CvKalman {
             }
             self.diverging = self.divergence_run >= self.params.divergence_confirm.max(1);
         }
-        self.track = Some(Track { t_s: m.t_s, x, p });
+        if let Some(track) = &mut self.track {
+            track.t_s = m.t_s;
+            track.x = x;
+            track.p = p;
+        }
         Ok(())
     }
 

@@ -948,7 +948,7 @@ mod tests {
         let err = update_selected(&mut x, &mut p, &Vector1::new(0.0), &[7], &Matrix1::new(1.0));
         assert_eq!(err, Err(TrackError::NotPositiveDefinite));
     }
-    use nalgebra::{Matrix1, Matrix1x2, Matrix2, Matrix3, Vector1, Vector2, Vector3};
+    use nalgebra::{Matrix1, Matrix1x2, Matrix2, Vector1, Vector2};
 
     /// 1-D constant velocity, for the trait tests.
     struct Cv1 {
@@ -1007,33 +1007,32 @@ mod tests {
         assert!((inn.nis - 0.125).abs() < 1e-12);
     }
 
+    /// The log-likelihood of a zero innovation with S = var·I (M components), against
+    /// −(M ln 2π + M ln var)/2.
+    fn assert_isotropic_log_likelihood<const M: usize>(var: f64) {
+        let mut x = SVector::<f64, M>::zeros();
+        let mut p = SMatrix::<f64, M, M>::identity() * var * 0.5;
+        let r = SMatrix::<f64, M, M>::identity() * var * 0.5;
+        let h = SMatrix::<f64, M, M>::identity();
+        let inn = update(&mut x, &mut p, &SVector::zeros(), &h, &r).unwrap();
+        let expected = -0.5 * M as f64 * (LN_2PI + var.ln());
+        assert!(
+            (inn.log_likelihood() - expected).abs() < 1e-9 * expected.abs(),
+            "{M} components of variance {var}"
+        );
+    }
+
     #[test]
     fn log_likelihood_in_log_space_survives_tiny_and_huge_covariances() {
         // det S = 1e-400 underflows f64 (and 1e400 overflows); the log form does not:
         // two components of variance 1e-200 each -> ln det S = 2 ln(1e-200).
         for var in [1e-200, 1e200] {
-            let mut x = Vector2::zeros();
-            let mut p = Matrix2::identity() * var * 0.5;
-            let r = Matrix2::identity() * var * 0.5;
-            let inn = update(&mut x, &mut p, &Vector2::zeros(), &Matrix2::identity(), &r).unwrap();
-            let expected = -0.5 * (2.0 * LN_2PI + 2.0 * var.ln());
-            assert!(
-                (inn.log_likelihood() - expected).abs() < 1e-9 * expected.abs(),
-                "{var}"
-            );
+            assert_isotropic_log_likelihood::<2>(var);
         }
         // Three components whose factor's diagonal multiplies out of f64's normal range
         // (1e-375, 1e375): the sum of logarithms takes over.
-        for var in [1e-250_f64, 1e250] {
-            let mut x = Vector3::zeros();
-            let mut p = Matrix3::identity() * var * 0.5;
-            let r = Matrix3::identity() * var * 0.5;
-            let inn = update(&mut x, &mut p, &Vector3::zeros(), &Matrix3::identity(), &r).unwrap();
-            let expected = -0.5 * (3.0 * LN_2PI + 3.0 * var.ln());
-            assert!(
-                (inn.log_likelihood() - expected).abs() < 1e-9 * expected.abs(),
-                "{var}"
-            );
+        for var in [1e-250, 1e250] {
+            assert_isotropic_log_likelihood::<3>(var);
         }
     }
 

@@ -1,5 +1,6 @@
-//! The specialised Kalman steps against the generic dense ones they replace (bit-equal
-//! results, tested in `track::kalman`): one CV update (6-state, joint position/velocity
+//! The specialised Kalman steps against the generic dense ones they replace (the same
+//! predictions bit for bit, updates equal to rounding: tested in `track::kalman`): one CV
+//! update (6-state, joint position/velocity
 //! report) and one 9-state IMM cycle's filtering (the six models' prediction and update),
 //! plus a whole `Imm::step` (mixing, filtering, probabilities).
 

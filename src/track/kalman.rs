@@ -55,9 +55,10 @@ impl<const M: usize> Innovation<M> {
     /// The product of the M ≤ 6 diagonal entries (standard deviations, metres or m/s) is
     /// far inside f64's range for any covariance a track holds, and one logarithm of it
     /// costs a third of the three that Σ ln Lᵢᵢ took (those were 3 % of the default
-    /// tracker's instructions on the fleet: an IMM asks for six likelihoods a report). When
-    /// the product under- or overflows (a factor below 1e-50 or above 1e50), the sum of the
-    /// logarithms is taken instead, so the result never under- or overflows.
+    /// tracker's instructions on the fleet: an IMM asks for six likelihoods a report). Only
+    /// when the product leaves f64's normal range (about 1e±308: six standard deviations
+    /// all below 1e-51, say) is the sum of the logarithms taken instead, so the result
+    /// never under- or overflows.
     ///
     /// Computed when asked: a single filter (the CV filter, `kalman-cv`) never reads it.
     pub fn log_likelihood(&self) -> f64 {
@@ -561,12 +562,12 @@ pub const fn blocks6(a: usize, b: usize) -> [usize; 6] {
 /// form gives P − K Bᵀ − B Kᵀ + K S Kᵀ for every K; ½ (K Wᵀ + W Kᵀ) is K Bᵀ + B Kᵀ − K S Kᵀ
 /// (S symmetric), so nothing is dropped: W − B = B − K S is the gain's rounding error, which
 /// Joseph's form carries and the short form P − K Bᵀ drops. It costs N M² + N² M
-/// multiplications (180 for a 6-state filter and a 3-vector report) where the product form
+/// multiplications (162 for a 6-state filter and a 3-vector report) where the product form
 /// on the selection took 2 (M + 1) N² + N M² + N² M (450), and the result is symmetric by
 /// construction. It differs from [`update_dense`]'s products only by rounding (tested within
 /// 1e-12 of the covariance's scale), then is checked positive definite
-/// ([`is_positive_definite`]). NIS = |L⁻¹ ε|² and ln det S = 2 Σ ln Lᵢᵢ come from the same
-/// factor, in log space.
+/// ([`is_positive_definite`]). NIS = |L⁻¹ ε|² and ln det S = 2 ln Πᵢ Lᵢᵢ
+/// ([`Innovation::log_likelihood`]) come from the same factor.
 #[inline(always)]
 pub fn update_selected<const N: usize, const M: usize>(
     x: &mut SVector<f64, N>,

@@ -318,7 +318,7 @@ impl Tracker for CvKalman {
         }
         // The state is copied once, into the working x and P (the track keeps the old one
         // until the update succeeds), and written back in place.
-        let Some(track_t_s) = self.track.as_ref().map(|t| t.t_s) else {
+        let Some(track) = self.track.as_ref() else {
             match (&m.position, &m.velocity) {
                 (Some(pos), vel) => self.initiate(m.t_s, pos, vel.as_ref()),
                 (None, Some(vel)) => {
@@ -330,10 +330,7 @@ impl Tracker for CvKalman {
             }
             return Ok(());
         };
-        let (mut x, mut p) = match &self.track {
-            Some(t) => (t.x, t.p),
-            None => return Ok(()),
-        };
+        let (track_t_s, mut x, mut p) = (track.t_s, track.x, track.p);
 
         self.model.predict(&mut x, &mut p, m.t_s - track_t_s);
         // `Some((ε_pos, S_pos))` when the report had a position, for the divergence test.

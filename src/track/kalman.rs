@@ -605,9 +605,16 @@ pub fn update_selected<const N: usize, const M: usize>(
     let ks = columns_times::<N, M, M>(&k, |l, m| s[(l, m)]);
     let w = SMatrix::<f64, N, M>::from_fn(|i, m| 2.0 * hp[(m, i)] - ks[(i, m)]);
     let a = columns_times::<N, M, N>(&k, |m, j| w[(j, m)]);
-    let p_new = SMatrix::<f64, N, N>::from_fn(|i, j| {
-        0.5 * ((p[(i, j)] + p[(j, i)]) - (a[(i, j)] + a[(j, i)]))
-    });
+    // The lower triangle, each entry written to its mirror too: what `from_fn` over every
+    // entry gave (a sum of two values is the same in either order), for half the sums.
+    let mut p_new = SMatrix::<f64, N, N>::zeros();
+    for j in 0..N {
+        for i in j..N {
+            let v = 0.5 * ((p[(i, j)] + p[(j, i)]) - (a[(i, j)] + a[(j, i)]));
+            p_new[(i, j)] = v;
+            p_new[(j, i)] = v;
+        }
+    }
     accept(x, p, x_new, p_new, &chol, residual, s)
 }
 

@@ -201,8 +201,14 @@ fn evaluate(
             let title = format!("{name}, {runs} runs");
             let exp = bench::monte_carlo(&sc, &names, runs, seed, cfg, &out.join("work"))?;
             let _ = std::fs::remove_dir_all(out.join("work"));
+            // A scenario given as a file is named by its stem: its plots go in `out`, not
+            // beside the file (an absolute path would replace `out`) or in subdirectories of
+            // `out` that nobody created.
+            let stem = std::path::Path::new(&name)
+                .file_stem()
+                .map_or_else(|| name.clone(), |s| s.to_string_lossy().into_owned());
             let plots =
-                plot::plot_run(&out.join(&name), &name, &exp.first_truth, &exp.first_traces)
+                plot::plot_run(&out.join(&stem), &stem, &exp.first_truth, &exp.first_traces)
                     .map_err(anyhow::Error::msg)?;
             for p in plots {
                 eprintln!("wrote {}", p.display());

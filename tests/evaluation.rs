@@ -178,6 +178,46 @@ fn monte_carlo_runs_are_reproducible_and_score_the_same_frames() {
     std::fs::remove_dir_all(&dir).ok();
 }
 
+/// A scenario given as a file (an absolute path, as a script would pass it) is plotted into
+/// `--out` under its stem, and nothing is written beside the file.
+#[test]
+fn a_scenario_file_is_plotted_into_out() {
+    let dir = std::env::temp_dir().join(format!("adsb-scnfile-{}", std::process::id()));
+    let scn_dir = dir.join("scenarios");
+    std::fs::create_dir_all(&scn_dir).unwrap();
+    let scn = scn_dir.join("approach.toml");
+    std::fs::copy(
+        concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/fixtures/scenarios/approach.toml"
+        ),
+        &scn,
+    )
+    .unwrap();
+    let out = dir.join("out");
+    run_ok(
+        bin()
+            .args([
+                "evaluate",
+                "--runs",
+                "1",
+                "--trackers",
+                "kalman-cv",
+                "--scenario",
+            ])
+            .arg(&scn)
+            .arg("--out")
+            .arg(&out),
+    );
+    for plot in ["map", "error", "modes"] {
+        let svg = std::fs::read_to_string(out.join(format!("approach-{plot}.svg"))).unwrap();
+        assert!(svg.contains("<svg"), "{plot}");
+    }
+    let beside: Vec<_> = std::fs::read_dir(&scn_dir).unwrap().collect();
+    assert_eq!(beside.len(), 1, "only the scenario itself: {beside:?}");
+    std::fs::remove_dir_all(&dir).ok();
+}
+
 #[test]
 fn evaluate_refuses_bad_input_clearly() {
     let out = bin()

@@ -162,6 +162,8 @@ pub struct HybridConfig {
     pub turn_rate_limits_deg_s: [f64; 2],
     /// IMM probability of the gate's label when the IMM opens.
     pub entry_probability: f64,
+    /// While a gate test holds, run the IMM over CV and the modes it names.
+    pub variable_structure: bool,
     /// Learn each aircraft's measurement noise from its innovations (`track::noise`).
     pub learn_noise: bool,
     /// Bounds of the learned factor on the declared covariance.
@@ -490,6 +492,7 @@ impl TrackerConfig {
             false,
             1.0,
         )?;
+        p.variable_structure = h.variable_structure;
         p.noise = self.noise_params()?;
         Ok(p)
     }

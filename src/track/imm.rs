@@ -469,6 +469,9 @@ pub struct Imm {
     nis: [f64; N_MODES],
     /// The CV model's innovation blocks at the last step, for [`super::noise`].
     cv_blocks: [BlockStat; 2],
+    /// The modes of the current model set ([`Imm::set_active`]): the enabled ones unless a
+    /// caller narrows them.
+    active: [bool; N_MODES],
 }
 
 impl Imm {
@@ -484,6 +487,7 @@ impl Imm {
             divergence_events: [0; N_MODES],
             nis: [f64::NAN; N_MODES],
             cv_blocks: [BlockStat::default(); 2],
+            active: params.enabled,
         };
         imm.mu = imm.normalised(&params.initial_probabilities);
         imm
@@ -494,12 +498,12 @@ impl Imm {
         &self.params
     }
 
-    /// `probabilities` restricted to the enabled modes and normalised (uniform over the
-    /// enabled modes when they sum to nothing).
+    /// `probabilities` restricted to the active modes and normalised (uniform over the
+    /// active modes when they sum to nothing).
     fn normalised(&self, probabilities: &[f64; N_MODES]) -> [f64; N_MODES] {
         let mut mu = [0.0; N_MODES];
         for (i, m) in mu.iter_mut().enumerate() {
-            if self.params.enabled[i] && probabilities[i].is_finite() {
+            if self.active[i] && probabilities[i].is_finite() {
                 *m = probabilities[i].max(0.0);
             }
         }
@@ -507,12 +511,40 @@ impl Imm {
         if sum > 0.0 {
             mu.iter_mut().for_each(|m| *m /= sum);
         } else {
-            let n = self.params.enabled.iter().filter(|e| **e).count().max(1) as f64;
+            let n = self.active.iter().filter(|e| **e).count().max(1) as f64;
             for (i, m) in mu.iter_mut().enumerate() {
-                *m = if self.params.enabled[i] { 1.0 / n } else { 0.0 };
+                *m = if self.active[i] { 1.0 / n } else { 0.0 };
             }
         }
         mu
+    }
+
+    /// Narrows the model set to `modes` (within the enabled ones; all of them when that
+    /// leaves none): a variable-structure IMM (Li & Bar-Shalom 1996, "Multiple-model
+    /// estimation with variable structure", IEEE TAC 41(4); paper 003's VSIMM), whose
+    /// caller knows which modes the data can be in. Takes effect at the next step:
+    /// - the transition matrix is re-normalised over the active modes ([`Imm::transition`]);
+    /// - a mode that leaves the set passes its whole probability on, by its switch weights,
+    ///   to the modes that stay: the mixing folds its estimate into theirs, so the combined
+    ///   estimate does not jump;
+    /// - a mode that enters has probability 0 before the step, so it starts from the mixture
+    ///   of the others (its own old state gets weight 0);
+    /// - an inactive mode is not filtered and costs nothing.
+    pub fn set_active(&mut self, modes: [bool; N_MODES]) {
+        let mut active = [false; N_MODES];
+        for ((a, m), e) in active.iter_mut().zip(modes).zip(self.params.enabled) {
+            *a = m && e;
+        }
+        self.active = if active.contains(&true) {
+            active
+        } else {
+            self.params.enabled
+        };
+    }
+
+    /// The modes of the current model set ([`Imm::set_active`]).
+    pub fn active(&self) -> &[bool; N_MODES] {
+        &self.active
     }
 
     /// Restarts every mode from the same (x, P) with mode probabilities `mu` (normalised;
@@ -624,10 +656,15 @@ impl Imm {
         (states.x[i], unpack(&states.p[i]))
     }
 
-    /// The Markov transition matrix over `dt_s` (module doc), over the enabled modes.
+    /// The Markov transition matrix over `dt_s` (module doc), from every enabled mode to
+    /// the active ones ([`Imm::set_active`]): an active mode stays with probability
+    /// exp(−dt/τ) and leaves by its switch weights over the other active modes; an inactive
+    /// one leaves with certainty. With every enabled mode active (the default) it is the
+    /// plain IMM's.
     pub fn transition(&self, dt_s: f64) -> [[f64; N_MODES]; N_MODES] {
         let mut pi = [[0.0; N_MODES]; N_MODES];
         let enabled = &self.params.enabled;
+        let active = &self.active;
         // exp(−dt/τ) once per distinct τ (the defaults have two: CV's and the manoeuvres').
         let mut stays: [(f64, f64); N_MODES] = [(f64::NAN, 0.0); N_MODES];
         let mut n_stays = 0;
@@ -640,6 +677,7 @@ impl Imm {
                 .get(..n_stays)
                 .and_then(|s| s.iter().find(|(t, _)| *t == tau));
             let stay = match known {
+                _ if !active[i] => 0.0,
                 Some(&(_, stay)) => stay,
                 None => {
                     let stay = if tau > 0.0 {
@@ -656,16 +694,22 @@ impl Imm {
             };
             let weights = &self.params.switch_weights[i];
             let total: f64 = (0..N_MODES)
-                .filter(|&j| j != i && enabled[j])
+                .filter(|&j| j != i && active[j])
                 .map(|j| weights[j].max(0.0))
                 .sum();
             if total > 0.0 && stay.is_finite() {
                 row[i] = stay;
-                for j in (0..N_MODES).filter(|&j| j != i && enabled[j]) {
+                for j in (0..N_MODES).filter(|&j| j != i && active[j]) {
                     row[j] = (1.0 - stay) * weights[j].max(0.0) / total;
                 }
-            } else {
+            } else if active[i] {
                 row[i] = 1.0;
+            } else {
+                // No weight towards the set: leave for each active mode alike.
+                let n = active.iter().filter(|a| **a).count().max(1) as f64;
+                for (r, a) in row.iter_mut().zip(active) {
+                    *r = if *a { 1.0 / n } else { 0.0 };
+                }
             }
         }
         pi
@@ -696,7 +740,7 @@ impl Imm {
         let mut any_ok = false;
         let divergence = &self.params.divergence;
         for (j, (x_out, p_out)) in x_new.iter_mut().zip(p_new.iter_mut()).enumerate() {
-            if !self.params.enabled[j] || c_bar[j] <= 0.0 {
+            if !self.active[j] || c_bar[j] <= 0.0 {
                 continue;
             }
             // Mixing: μᵢ|ⱼ = πᵢⱼ μᵢ / c̄ⱼ.
@@ -1453,6 +1497,100 @@ mod tests {
         // dt = 0: the identity.
         let pi = imm.transition(0.0);
         assert!((0..N_MODES).all(|i| pi[i][i] == 1.0));
+    }
+
+    /// A narrowed model set (a variable-structure IMM): every row still sums to 1, only the
+    /// active modes are reached, an inactive mode leaves with certainty by its switch
+    /// weights over the active ones, and widening the set again gives the plain matrix.
+    #[test]
+    fn a_narrowed_set_transitions_only_into_its_modes() {
+        let mut imm = Imm::new(ImmParams::default());
+        let plain = imm.transition(0.5);
+        // CV, CA and both turns (what the hybrid runs in a level turn).
+        imm.set_active([true, true, true, true, false, false]);
+        let pi = imm.transition(0.5);
+        for (i, row) in pi.iter().enumerate() {
+            assert!((row.iter().sum::<f64>() - 1.0).abs() < 1e-12, "row {i}");
+            assert!(
+                row[4] == 0.0 && row[5] == 0.0,
+                "row {i} reaches an inactive mode"
+            );
+        }
+        // CT left stays as before; it leaves over CV, CA and CT right by 4 : 1 : 0.25.
+        let leave = 1.0 - (-0.5f64 / 20.0).exp();
+        assert_eq!(pi[2][2], plain[2][2]);
+        assert!((pi[2][0] - leave * 4.0 / 5.25).abs() < 1e-15);
+        assert!((pi[2][1] - leave * 1.0 / 5.25).abs() < 1e-15);
+        // CH, inactive, leaves with certainty: to CV 4/6, to CA and each turn 1/6.
+        assert_eq!(pi[4][4], 0.0);
+        assert!((pi[4][0] - 4.0 / 7.0).abs() < 1e-15);
+        assert!((pi[4][1] - 1.0 / 7.0).abs() < 1e-15);
+        // An empty set, or one of disabled modes only, is every enabled mode.
+        imm.set_active([false; N_MODES]);
+        assert_eq!(imm.active(), &[true; N_MODES]);
+        assert_eq!(imm.transition(0.5), plain);
+    }
+
+    /// A mode that leaves the set hands its probability on and is no longer filtered; the
+    /// combined estimate moves only by what the report teaches (no jump from dropping a
+    /// mode's estimate); a mode that enters starts at probability 0 and gains from the next
+    /// reports.
+    #[test]
+    fn modes_leave_and_enter_the_set_without_a_jump() {
+        let mut imm = Imm::new(ImmParams::default());
+        let mut x = State9::zeros();
+        x[3] = 100.0;
+        imm.reset(&x, &(Matrix9::identity() * 25.0), None);
+        let report =
+            |t: f64| Observation::Position(observed(Vector3::new(100.0 * t, 0.0, 0.0), 10.0));
+        let mut t = 0.0;
+        for _ in 0..20 {
+            t += 0.5;
+            imm.step(0.5, &report(t)).unwrap();
+        }
+        let before = imm.probabilities()[ImmMode::Ch.index()];
+        assert!(before > 0.0);
+        // CH, CHCA and CA leave.
+        imm.set_active([true, false, true, true, false, false]);
+        let (x0, _) = imm.combined();
+        t += 0.5;
+        imm.step(0.5, &report(t)).unwrap();
+        let mu = imm.probabilities();
+        assert_eq!((mu[1], mu[4], mu[5]), (0.0, 0.0, 0.0));
+        assert!((mu.iter().sum::<f64>() - 1.0).abs() < 1e-12);
+        let (x1, p1) = imm.combined();
+        assert!(
+            (x1[0] - (x0[0] + 50.0)).abs() < 1.0,
+            "{} -> {}",
+            x0[0],
+            x1[0]
+        );
+        assert!(kalman::is_positive_definite(&p1));
+        // CH enters again at 0, and a climb's onset makes a climbing mode the likeliest.
+        imm.set_active([true; N_MODES]);
+        let mut climbing = 0.0f64;
+        for k in 0..12 {
+            t += 0.5;
+            let climb = if k > 4 {
+                10.0 * (k - 4) as f64 * 0.5
+            } else {
+                0.0
+            };
+            let obs = Observation::Both(
+                observed(Vector3::new(100.0 * t, 0.0, climb), 10.0),
+                observed(
+                    Vector3::new(100.0, 0.0, if k > 4 { 10.0 } else { 0.0 }),
+                    0.5,
+                ),
+            );
+            imm.step(0.5, &obs).unwrap();
+            let mu = imm.probabilities();
+            if k == 0 {
+                assert!(mu[4] > 0.0);
+            }
+            climbing = climbing.max(mu[4] + mu[5]);
+        }
+        assert!(climbing > 0.5, "{climbing}");
     }
 
     /// Two enabled modes, hand-computed mixing, mode probability and combination.

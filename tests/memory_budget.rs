@@ -17,9 +17,10 @@ fn what_an_aircraft_holds_stays_within_its_budget() {
     // ended snapshot boxed (inline, it took 536 bytes of the 1,232).
     assert!(size_of::<Aircraft>() <= 768, "{}", size_of::<Aircraft>());
     // The default tracker, its tuning shared: 6.3 KB when each held its own copy and the
-    // gate's 32-report buffer inline.
+    // gate's 32-report buffer inline; 48 bytes more since its IMM's model set follows the
+    // gate (when the gate last named each mode).
     assert!(
-        size_of::<HybridTracker>() <= 1792,
+        size_of::<HybridTracker>() <= 1840,
         "{}",
         size_of::<HybridTracker>()
     );

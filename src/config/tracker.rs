@@ -449,7 +449,8 @@ impl TrackerConfig {
     }
 
     /// The `hybrid` tracker; with `paper002_gate`, paper 002's printed gate thresholds
-    /// whatever `[tracker.gate]` says (the `hybrid-paper002` tracker).
+    /// whatever `[tracker.gate]` says, and the IMM over every mode (the `hybrid-paper002`
+    /// tracker).
     pub fn hybrid_params(&self, paper002_gate: bool) -> Result<HybridParams, ConfigError> {
         let mut p = HybridParams::default();
         p.cv.q_h_m2ps3 = self.cv_q_horizontal;
@@ -492,7 +493,8 @@ impl TrackerConfig {
             false,
             1.0,
         )?;
-        p.variable_structure = h.variable_structure;
+        // Paper 002's preset runs its RMIMM over every mode ([`HybridParams::paper002`]).
+        p.variable_structure = h.variable_structure && !paper002_gate;
         p.noise = self.noise_params()?;
         Ok(p)
     }

@@ -562,7 +562,18 @@ impl HybridTracker {
             _ => {}
         }
         if let Branch::Imm { by_divergence } = self.branch {
+            let before = *self.imm.active();
             self.imm.set_active(set);
+            // The gate's label enters a running IMM as it opens one: at the combined
+            // estimate, with the entry probability (otherwise it starts at probability 0 and
+            // needs reports to overtake the manoeuvre in course: the approach's turn begun
+            // as its deceleration ends, velocity RMSE 1.32 against 1.29 m/s).
+            if let Some(target) = self.entry_mode(&reading) {
+                let i = target.index();
+                if !before[i] && self.imm.active()[i] {
+                    self.imm.enter(target, self.params.entry_probability);
+                }
+            }
             let rate = self.turn_rate(stale, &reading);
             self.imm.set_turn_rate(rate);
             if reading.manoeuvre() {

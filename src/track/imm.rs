@@ -542,6 +542,34 @@ impl Imm {
         };
     }
 
+    /// Gives `mode` (an active one) probability `share` (0..=1) at the combined estimate:
+    /// its state becomes the combined (x̂, P) and μ ← (1 − share) μ + share·e_mode. A
+    /// component placed at the mixture's own mean with the mixture's covariance leaves the
+    /// combined estimate exactly where it was, so this moves no estimate; it is how a
+    /// manoeuvre the gate names enters an IMM that already runs, as [`Imm::reset`] with the
+    /// gate's entry probabilities is how the IMM opens.
+    pub fn enter(&mut self, mode: ImmMode, share: f64) {
+        let i = mode.index();
+        if !self.active.get(i).copied().unwrap_or(false) || !(0.0..=1.0).contains(&share) {
+            return;
+        }
+        let (x, p) = self.combined();
+        let p = pack(&kalman::symmetrise(&p));
+        let states = self.states_mut();
+        if let (Some(xs), Some(ps)) = (states.x.get_mut(i), states.p.get_mut(i)) {
+            *xs = x;
+            *ps = p;
+        }
+        let mut mu = self.mu;
+        for m in mu.iter_mut() {
+            *m *= 1.0 - share;
+        }
+        if let Some(m) = mu.get_mut(i) {
+            *m += share;
+        }
+        self.mu = self.normalised(&mu);
+    }
+
     /// The modes of the current model set ([`Imm::set_active`]).
     pub fn active(&self) -> &[bool; N_MODES] {
         &self.active
@@ -1591,6 +1619,49 @@ mod tests {
             climbing = climbing.max(mu[4] + mu[5]);
         }
         assert!(climbing > 0.5, "{climbing}");
+    }
+
+    /// A mode entering at the combined estimate moves no estimate, and holds its share.
+    #[test]
+    fn entering_at_the_combined_estimate_moves_nothing() {
+        let mut imm = Imm::new(ImmParams::default());
+        let mut x = State9::zeros();
+        x[3] = 100.0;
+        imm.reset(&x, &(Matrix9::identity() * 25.0), None);
+        imm.set_active([true, true, false, false, false, false]);
+        for k in 1..=20 {
+            let t = 0.5 * k as f64;
+            let obs = Observation::Position(observed(
+                Vector3::new(100.0 * t + 0.2 * t * t, 3.0 * (k % 3) as f64, 0.0),
+                10.0,
+            ));
+            imm.step(0.5, &obs).unwrap();
+        }
+        let (x0, p0) = imm.combined();
+        imm.set_active([true, true, true, true, false, false]);
+        imm.enter(ImmMode::CtLeft, 0.5);
+        let (x1, p1) = imm.combined();
+        assert!(
+            (x1 - x0).norm() <= 1e-12 * x0.norm(),
+            "{}",
+            (x1 - x0).norm()
+        );
+        assert!(
+            (p1 - p0).norm() <= 1e-12 * p0.norm(),
+            "{}",
+            (p1 - p0).norm()
+        );
+        let mu = imm.probabilities();
+        assert!(mu[ImmMode::CtLeft.index()] >= 0.5);
+        assert!((mu.iter().sum::<f64>() - 1.0).abs() < 1e-12);
+        // An inactive mode, or a share outside 0..=1, changes nothing.
+        let held = imm.clone();
+        imm.enter(ImmMode::Ch, 0.5);
+        imm.enter(ImmMode::Ca, 1.5);
+        assert_eq!(imm.probabilities(), held.probabilities());
+        for mode in ImmMode::ALL {
+            assert_eq!(imm.mode_state(mode), held.mode_state(mode));
+        }
     }
 
     /// Two enabled modes, hand-computed mixing, mode probability and combination.

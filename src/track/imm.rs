@@ -1559,16 +1559,22 @@ mod tests {
         assert_eq!(imm.transition(0.5), plain);
     }
 
+    /// An IMM reset at the origin, flying east at 100 m/s, every mode at σ 5 m.
+    fn level_at_100_mps() -> Imm {
+        let mut imm = Imm::new(ImmParams::default());
+        let mut x = State9::zeros();
+        x[3] = 100.0;
+        imm.reset(&x, &(Matrix9::identity() * 25.0), None);
+        imm
+    }
+
     /// A mode that leaves the set hands its probability on and is no longer filtered; the
     /// combined estimate moves only by what the report teaches (no jump from dropping a
     /// mode's estimate); a mode that enters starts at probability 0 and gains from the next
     /// reports.
     #[test]
     fn modes_leave_and_enter_the_set_without_a_jump() {
-        let mut imm = Imm::new(ImmParams::default());
-        let mut x = State9::zeros();
-        x[3] = 100.0;
-        imm.reset(&x, &(Matrix9::identity() * 25.0), None);
+        let mut imm = level_at_100_mps();
         let report =
             |t: f64| Observation::Position(observed(Vector3::new(100.0 * t, 0.0, 0.0), 10.0));
         let mut t = 0.0;
@@ -1624,10 +1630,7 @@ mod tests {
     /// A mode entering at the combined estimate moves no estimate, and holds its share.
     #[test]
     fn entering_at_the_combined_estimate_moves_nothing() {
-        let mut imm = Imm::new(ImmParams::default());
-        let mut x = State9::zeros();
-        x[3] = 100.0;
-        imm.reset(&x, &(Matrix9::identity() * 25.0), None);
+        let mut imm = level_at_100_mps();
         imm.set_active([true, true, false, false, false, false]);
         for k in 1..=20 {
             let t = 0.5 * k as f64;

@@ -10,6 +10,9 @@
 //!   [x̂, 0] with P = diag(P, σ_a² I) (the acceleration unknown), so the combined estimate is
 //!   the CV estimate; IMM → CV keeps the position/velocity part of the combined estimate
 //!   and its covariance block (the marginal). No jump.
+//! - The IMM runs over CV and the modes the gate named ([`gate_modes`]; every mode when it
+//!   opens blind or by divergence alone): a turn needs no climb models, and the measured
+//!   velocities already say which manoeuvre it is (`variable_structure`).
 //! - No chatter: the gate has hysteresis, and the IMM stays on for at least
 //!   `min_manoeuvre_dwell_s` after the gate last fired.
 //! - Blind: the gate needs measured velocities. On a track fed positions only (no velocity
@@ -47,6 +50,9 @@ use nalgebra::{Matrix3, Vector3};
 /// Name of the hybrid tracker.
 pub const NAME: &str = "hybrid";
 
+/// [`Estimate::filter`] while the CV Kalman filter runs.
+pub const CV_FILTER: &str = "kalman-cv";
+
 /// The IMM modes the gate's tests name ([`HybridParams::variable_structure`]): CV always
 /// (every manoeuvre ends in it); for a turn both CT modes (the direction may be misread at
 /// the onset) and CA, whose free horizontal acceleration follows a turn flown at another
@@ -77,8 +83,6 @@ pub fn gate_modes(flags: &GateFlags) -> Option<[bool; N_MODES]> {
     }
     Some(modes)
 }
-/// [`Estimate::filter`] while the CV Kalman filter runs.
-pub const CV_FILTER: &str = "kalman-cv";
 
 /// Tuning of [`HybridTracker`].
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -425,6 +425,23 @@ impl HybridTracker {
         }
     }
 
+    /// The IMM's model set at `t_s`: the modes the gate named within the dwell (CV among
+    /// them: [`gate_modes`] always names it), when it reads measured velocities; every mode
+    /// when the IMM runs blind, on divergence alone (nothing named), or with
+    /// `variable_structure` off.
+    fn model_set(&self, t_s: f64, blind: bool) -> [bool; N_MODES] {
+        let dwell = self.params.min_manoeuvre_dwell_s;
+        let mut set = [false; N_MODES];
+        for (on, t) in set.iter_mut().zip(self.named_t_s) {
+            *on = t_s - t <= dwell;
+        }
+        if !self.params.variable_structure || blind || !set.contains(&true) {
+            [true; N_MODES]
+        } else {
+            set
+        }
+    }
+
     /// The IMM mode of the gate's label.
     fn entry_mode(&self, reading: &GateReading) -> Option<ImmMode> {
         let (mode, turn) = reading.label()?;
@@ -508,8 +525,6 @@ impl HybridTracker {
         if needs_imm || imm_manoeuvre {
             self.last_fire_t_s = t_s;
         }
-        // The model set: the modes the gate named within the dwell, when it reads measured
-        // velocities; every mode when the IMM runs blind or on divergence alone.
         if let Some(named) = gate_modes(&f) {
             for (t, on) in self.named_t_s.iter_mut().zip(named) {
                 if on {
@@ -517,20 +532,6 @@ impl HybridTracker {
                 }
             }
         }
-        let dwell = self.params.min_manoeuvre_dwell_s;
-        let mut set = [false; N_MODES];
-        for (on, t) in set.iter_mut().zip(self.named_t_s) {
-            *on = t_s - t <= dwell;
-        }
-        let manoeuvre_named = set.contains(&true);
-        if let Some(cv) = set.get_mut(ImmMode::Cv.index()) {
-            *cv = true;
-        }
-        let set = if !self.params.variable_structure || blind || !manoeuvre_named {
-            [true; N_MODES]
-        } else {
-            set
-        };
         match self.branch {
             Branch::Cv { x, p } if needs_imm => {
                 let mut x9 = State9::zeros();
@@ -549,7 +550,7 @@ impl HybridTracker {
                     p9[(i, i)] = a2;
                 }
                 let mu = self.entry_probabilities(&reading);
-                self.imm.set_active(set);
+                self.imm.set_active(self.model_set(t_s, blind));
                 self.imm.reset(&x9, &p9, mu.as_ref());
                 self.branch = Branch::Imm {
                     by_divergence: !reading.manoeuvre(),
@@ -567,7 +568,7 @@ impl HybridTracker {
         }
         if let Branch::Imm { by_divergence } = self.branch {
             let before = *self.imm.active();
-            self.imm.set_active(set);
+            self.imm.set_active(self.model_set(t_s, blind));
             // The gate's label enters a running IMM as it opens one: at the combined
             // estimate, with the entry probability (otherwise it starts at probability 0 and
             // needs reports to overtake the manoeuvre in course: the approach's turn begun

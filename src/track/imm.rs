@@ -553,8 +553,9 @@ impl Imm {
         if !self.active.get(i).copied().unwrap_or(false) || !(0.0..=1.0).contains(&share) {
             return;
         }
+        // Symmetric by construction ([`Imm::combined`]), and packing reads one triangle.
         let (x, p) = self.combined();
-        let p = pack(&kalman::symmetrise(&p));
+        let p = pack(&p);
         let states = self.states_mut();
         if let (Some(xs), Some(ps)) = (states.x.get_mut(i), states.p.get_mut(i)) {
             *xs = x;

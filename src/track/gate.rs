@@ -75,9 +75,11 @@ use super::{
 /// Most reports a window may span.
 pub const GATE_CAPACITY: usize = 32;
 
-/// Room past [`GATE_CAPACITY`] in the gate's sliding buffer: how many reports go between two
-/// slides.
-const GATE_SLACK: usize = 8;
+/// Room past the longest window in the gate's sliding buffer: one report more than this goes
+/// between two slides. 3 makes the default buffer 27 samples of 56 bytes, 1,512 bytes: under
+/// jemalloc's 1,536-byte size class, where 8 took the 2,048-byte class (per aircraft: memory
+/// at fleet scale), for a 1.3 KB copy every fourth report instead of every ninth.
+const GATE_SLACK: usize = 3;
 
 /// 1 knot in m/s: the resolution of ADS-B velocity components (DO-260B §2.2.3.2.6.1.7/.8,
 /// subsonic).
@@ -240,9 +242,10 @@ impl Default for GateParams {
     }
 }
 
-/// One velocity in the window, with what the tests need precomputed (64 bytes: the gate is
+/// One velocity in the window, with what the tests need precomputed (56 bytes: the gate is
 /// per aircraft, and memory at fleet scale is per aircraft; the wrapped heading is kept for
-/// the newest sample alone, [`Gate::newest_angle_rad`]).
+/// the newest sample alone, [`Gate::newest_angle_rad`], and the heading's variance is
+/// computed where it is read, [`Sample::heading_var`]).
 #[derive(Clone, Copy, Debug, PartialEq, Default)]
 struct Sample {
     t_s: f64,
@@ -251,8 +254,6 @@ struct Sample {
     /// Heading as a math angle atan2(vn, ve) (counter-clockwise from east), unwrapped from
     /// the previous sample's (continuous through ±π), rad.
     heading_rad: f64,
-    /// Variance of the heading, rad²: the horizontal component variance over speed².
-    heading_var: f64,
     /// Vertical rate, m/s (NaN-free; meaningful only when `var_u` is finite).
     vu_mps: f64,
     /// Variance of one horizontal component, (m/s)².
@@ -261,6 +262,15 @@ struct Sample {
     var_u: f64,
     /// From a velocity report (not derived from a filter).
     measured: bool,
+}
+
+impl Sample {
+    /// Variance of the heading, rad²: the horizontal component variance over speed². (Kept
+    /// in the sample, it took 8 of its bytes for one division each time it is read, by the
+    /// turn tests alone.)
+    fn heading_var(&self) -> f64 {
+        self.var_h / (self.speed_mps * self.speed_mps)
+    }
 }
 
 /// Which tests hold.
@@ -605,9 +615,9 @@ impl DiffNoise {
 ///
 /// The samples live in a sliding buffer of the longest window the tests read
 /// ([`GateParams::longest_window`]) plus [`GATE_SLACK`]: written in order, and when the end
-/// is reached the newest capacity − 1 slide back to the front (one 1.5 KB copy every nine
-/// reports with the default windows). The newest n are always one contiguous slice, so
-/// every test is a plain loop over a slice with no modulo; and the buffer is 2 KB with
+/// is reached the newest capacity − 1 slide back to the front (one 1.3 KB copy every fourth
+/// report with the default windows). The newest n are always one contiguous slice, so
+/// every test is a plain loop over a slice with no modulo; and the buffer is 1.5 KB with
 /// the default windows (the gate is per aircraft: memory at fleet scale).
 #[derive(Clone, Debug, PartialEq)]
 pub struct Gate {
@@ -768,7 +778,6 @@ impl Gate {
             t_s,
             speed_mps,
             heading_rad,
-            heading_var: var_h / (speed_mps * speed_mps),
             vu_mps: vu,
             var_h,
             var_u,
@@ -815,7 +824,11 @@ impl Gate {
         {
             return None;
         }
-        ls_slope(window.iter().map(|s| (s.t_s, s.heading_rad, s.heading_var)))
+        ls_slope(
+            window
+                .iter()
+                .map(|s| (s.t_s, s.heading_rad, s.heading_var())),
+        )
     }
 
     /// The turn onset test: the strongest (in σ) of the hinge fits ([`hinge_onset`]) of the
@@ -834,7 +847,7 @@ impl Gate {
             return None;
         }
         hinge_onset(all, p.onset_reports, lambda_rad_s, |s| {
-            (s.heading_rad, s.heading_var)
+            (s.heading_rad, s.heading_var())
         })
     }
 
@@ -1061,6 +1074,17 @@ mod tests {
             }
         }
         (fired as f64 / total as f64, last)
+    }
+
+    #[test]
+    fn the_default_buffer_fits_a_1536_byte_allocation() {
+        // jemalloc's size classes between 1 and 2 KiB are 1,280, 1,536, 1,792 and 2,048
+        // bytes: a buffer of 1,537 would take 2,048 per aircraft.
+        assert_eq!(std::mem::size_of::<Sample>(), 56);
+        let gate = Gate::new(GateParams::default());
+        let bytes = std::mem::size_of_val(&*gate.samples);
+        assert!(bytes <= 1536, "{bytes}");
+        assert_eq!(gate.capacity(), GateParams::default().longest_window());
     }
 
     #[test]

@@ -71,8 +71,9 @@ impl HistoryConfig {
     }
 }
 
-/// Most points a trail may be configured to hold: 36,000 points of 16 bytes are 576 KB
-/// per aircraft, already far past what a map draws.
+/// Most points a trail may be configured to hold: 36,000 points of about 5 bytes are
+/// 180 KB per aircraft (more for a trail of jumps across the globe), already far past what
+/// a map draws.
 pub const MAX_HISTORY_POINTS: usize = 36_000;
 
 impl StreamConfig {

@@ -113,11 +113,13 @@ impl<const N: usize> Prediction<N> {
         x: &SVector<f64, N>,
         p: &SMatrix<f64, N, N>,
     ) -> Self {
-        Self {
+        let mut pred = Self {
             x: f * x,
-            fpf: kalman::sparse_fpf(f, p),
+            fpf: SMatrix::zeros(),
             q,
-        }
+        };
+        kalman::sparse_fpf_into(f, p, &mut pred.fpf);
+        pred
     }
 
     /// The block of rows and columns `offset..offset + 3` of [`Prediction::covariance`]

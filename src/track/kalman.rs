@@ -363,17 +363,30 @@ pub fn sparse_fpf<const N: usize>(
     f: &SMatrix<f64, N, N>,
     p: &SMatrix<f64, N, N>,
 ) -> SMatrix<f64, N, N> {
+    let mut out = SMatrix::<f64, N, N>::zeros();
+    sparse_fpf_into(f, p, &mut out);
+    out
+}
+
+/// [`sparse_fpf`] written into `out` (every entry), for a caller that keeps the product in a
+/// struct: returned by value from a function with several returns, the 6x6 or 8x8 product
+/// was copied once more on its way out (a `memcpy` call per prediction, 0.9 % of a fleet
+/// replay's instructions).
+pub fn sparse_fpf_into<const N: usize>(
+    f: &SMatrix<f64, N, N>,
+    p: &SMatrix<f64, N, N>,
+    out: &mut SMatrix<f64, N, N>,
+) {
     // The 6- and 8-state blocks write straight into the result (the slices convert exactly
     // when N is 6 or 8).
     if N == 6 || N == 8 {
-        let mut out = SMatrix::<f64, N, N>::zeros();
         if let (Ok(f8), Ok(p8), Ok(o8)) = (
             <&[f64; 64]>::try_from(f.as_slice()),
             <&[f64; 64]>::try_from(p.as_slice()),
             <&mut [f64; 64]>::try_from(out.as_mut_slice()),
         ) {
             if fpf_support8(f8, p8, o8) {
-                return out;
+                return;
             }
         }
         if let (Ok(f6), Ok(p6), Ok(o6)) = (
@@ -382,21 +395,21 @@ pub fn sparse_fpf<const N: usize>(
             <&mut [f64; 36]>::try_from(out.as_mut_slice()),
         ) {
             if fpf_support6(f6, p6, o6) {
-                return out;
+                return;
             }
         }
     }
     if N < 9 {
         // Other sizes below 9, and a 6x6 or 8x8 F off the models' pattern: the dense
         // product, fully unrolled and vectorised.
-        return f * p * f.transpose();
+        *out = f * p * f.transpose();
+    } else if N == 9 && within_support(f, &SUPPORT9) {
+        *out = fpf_on_support(f, p, &SUPPORT9);
+    } else {
+        let support = RowSupport::of(f);
+        let rows: [&[usize]; N] = std::array::from_fn(|i| support.row(i));
+        *out = fpf_on_support(f, p, &rows);
     }
-    if N == 9 && within_support(f, &SUPPORT9) {
-        return fpf_on_support(f, p, &SUPPORT9);
-    }
-    let support = RowSupport::of(f);
-    let rows: [&[usize]; N] = std::array::from_fn(|i| support.row(i));
-    fpf_on_support(f, p, &rows)
 }
 
 /// Whether the symmetric `a` is positive definite, by an LDLᵀ factorisation (no square

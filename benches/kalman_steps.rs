@@ -146,8 +146,9 @@ fn imm_filtering(c: &mut Criterion) {
             let mut out = [0.0; 6];
             for (o, m) in out.iter_mut().zip(&models) {
                 let pred = Prediction::<9>::new(m.as_dyn(), &x, &p, black_box(0.5));
-                if let Ok(gd) = guarded_update(&pred, &obs, &params, 0) {
-                    *o = gd.log_likelihood + gd.p[(0, 0)];
+                let (mut x1, mut p1) = (x, p);
+                if let Ok(gd) = guarded_update(&pred, &obs, &params, 0, &mut x1, &mut p1) {
+                    *o = gd.log_likelihood + p1[(0, 0)];
                 }
             }
             out

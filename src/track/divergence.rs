@@ -175,13 +175,9 @@ impl Observation {
     }
 }
 
-/// The outcome of one guarded update.
+/// What one guarded update found, besides the posterior it wrote ([`guarded_update`]).
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Guarded<const N: usize> {
-    /// x̂(k+1|k+1).
-    pub x: SVector<f64, N>,
-    /// P(k+1|k+1).
-    pub p: SMatrix<f64, N, N>,
+pub struct Guarded {
     /// NIS of the nominal innovation.
     pub nis: f64,
     /// ln N(ε; 0, S) of the nominal innovation.
@@ -259,12 +255,19 @@ fn block_check<const N: usize, const M: usize>(
 /// `confirm` with suppression on, Adapt > 1 is solved (eq. 29), capped, and the update is
 /// redone from the same prediction with P = Adapt·Φ P Φᵀ + Q. The caller keeps the run
 /// ([`Guarded::run`]) for its next step. Errors are those of [`kalman::update`].
+///
+/// The posterior x̂(k+1|k+1), P(k+1|k+1) is written to `x_out`, `p_out` (unspecified on
+/// error): where the caller keeps it, not returned by value and copied again (a 6x6 or
+/// 8x8 covariance a mode per report).
 pub fn guarded_update<const N: usize>(
     pred: &Prediction<N>,
     obs: &Observation,
     params: &DivergenceParams,
     previous_run: u32,
-) -> Result<Guarded<N>, TrackError> {
+    x_out: &mut SVector<f64, N>,
+    p_out: &mut SMatrix<f64, N, N>,
+) -> Result<Guarded, TrackError> {
+    let out = (x_out, p_out);
     match obs {
         Observation::Position(o) => guarded_update_m::<N, 3>(
             pred,
@@ -274,6 +277,7 @@ pub fn guarded_update<const N: usize>(
             &[0],
             params,
             previous_run,
+            out,
         ),
         Observation::Velocity(o) => guarded_update_m::<N, 3>(
             pred,
@@ -283,6 +287,7 @@ pub fn guarded_update<const N: usize>(
             &[3],
             params,
             previous_run,
+            out,
         ),
         Observation::Both(p, v) => {
             let mut z = SVector::<f64, 6>::zeros();
@@ -299,14 +304,17 @@ pub fn guarded_update<const N: usize>(
                 &[0, 3],
                 params,
                 previous_run,
+                out,
             )
         }
     }
 }
 
 /// [`guarded_update`] for an M-vector z = x[sel] + v whose 3-blocks sit at the state offsets
-/// `blocks`; both Kalman updates are the specialised [`kalman::update_selected`].
+/// `blocks`; both Kalman updates are the specialised [`kalman::update_selected_to`], from the
+/// prediction's covariance into the caller's `out`.
 #[inline(always)]
+#[allow(clippy::too_many_arguments)]
 fn guarded_update_m<const N: usize, const M: usize>(
     pred: &Prediction<N>,
     z: &SVector<f64, M>,
@@ -315,10 +323,9 @@ fn guarded_update_m<const N: usize, const M: usize>(
     blocks: &[usize],
     params: &DivergenceParams,
     previous_run: u32,
-) -> Result<Guarded<N>, TrackError> {
-    let mut x = pred.x;
-    let mut p = pred.covariance(1.0);
-    let inn = kalman::update_selected(&mut x, &mut p, z, sel, r)?;
+    (x_out, p_out): (&mut SVector<f64, N>, &mut SMatrix<f64, N, N>),
+) -> Result<Guarded, TrackError> {
+    let inn = kalman::update_selected_to(&pred.x, &pred.covariance(1.0), z, sel, r, x_out, p_out)?;
     let mut diverged = false;
     let mut adapt = 1.0_f64;
     let mut stats = [BlockStat::default(); 2];
@@ -341,17 +348,11 @@ fn guarded_update_m<const N: usize, const M: usize>(
         0
     };
     if diverged && params.suppress && run >= params.confirm && adapt > 1.0 {
-        let mut x2 = pred.x;
-        let mut p2 = pred.covariance(adapt);
-        kalman::update_selected(&mut x2, &mut p2, z, sel, r)?;
-        x = x2;
-        p = p2;
+        kalman::update_selected_to(&pred.x, &pred.covariance(adapt), z, sel, r, x_out, p_out)?;
     } else {
         adapt = 1.0;
     }
     Ok(Guarded {
-        x,
-        p,
         nis: inn.nis,
         log_likelihood: inn.log_likelihood(),
         diverged,
@@ -370,6 +371,31 @@ mod tests {
     use rand::SeedableRng;
     use rand_distr::{Distribution, Normal};
 
+    /// [`guarded_update`] with its posterior beside what it found.
+    struct Updated<const N: usize> {
+        x: SVector<f64, N>,
+        p: SMatrix<f64, N, N>,
+        guarded: Guarded,
+    }
+
+    impl<const N: usize> std::ops::Deref for Updated<N> {
+        type Target = Guarded;
+        fn deref(&self) -> &Guarded {
+            &self.guarded
+        }
+    }
+
+    fn updated<const N: usize>(
+        pred: &Prediction<N>,
+        obs: &Observation,
+        params: &DivergenceParams,
+        previous_run: u32,
+    ) -> Result<Updated<N>, TrackError> {
+        let (mut x, mut p) = (SVector::zeros(), SMatrix::zeros());
+        let guarded = guarded_update(pred, obs, params, previous_run, &mut x, &mut p)?;
+        Ok(Updated { x, p, guarded })
+    }
+
     /// The paper's rule: suppress on every event.
     fn every_event() -> DivergenceParams {
         DivergenceParams {
@@ -387,19 +413,19 @@ mod tests {
         assert_eq!(params.confirm, 4);
         let mut run = 0;
         for k in 1..=3 {
-            let g = guarded_update(&pred, &obs, &params, run).unwrap();
+            let g = updated(&pred, &obs, &params, run).unwrap();
             assert!(g.diverged && g.run == k && g.adapt == 1.0, "event {k}");
             run = g.run;
         }
-        let fourth = guarded_update(&pred, &obs, &params, run).unwrap();
+        let fourth = updated(&pred, &obs, &params, run).unwrap();
         assert!(fourth.diverged && fourth.run == 4 && fourth.adapt > 1.0);
-        let first = guarded_update(&pred, &obs, &params, 0).unwrap();
+        let first = updated(&pred, &obs, &params, 0).unwrap();
         // Its state is the one the paper's every-event rule gives at once.
-        let paper = guarded_update(&pred, &obs, &every_event(), 0).unwrap();
+        let paper = updated(&pred, &obs, &every_event(), 0).unwrap();
         assert_eq!(fourth.x, paper.x);
         assert_eq!(
             first.x,
-            guarded_update(
+            updated(
                 &pred,
                 &obs,
                 &DivergenceParams {
@@ -412,7 +438,7 @@ mod tests {
             .x
         );
         // A quiet step ends the run.
-        let quiet = guarded_update(&pred, &position(Vector3::zeros(), 1.0), &params, 5).unwrap();
+        let quiet = updated(&pred, &position(Vector3::zeros(), 1.0), &params, 5).unwrap();
         assert_eq!(quiet.run, 0);
     }
 
@@ -435,7 +461,7 @@ mod tests {
         let pred = Prediction::<6>::new(&cv, &State6::zeros(), &p, 1.0);
         // Φ P Φᵀ position diagonal: 1 + T² = 2 per axis; Tr(HΦPΦᵀHᵀ) = 6; Tr(HQHᵀ) = 3e-6/3.
         let obs = position(Vector3::new(100.0, 0.0, 0.0), 1.0);
-        let g = guarded_update(&pred, &obs, &every_event(), 0).unwrap();
+        let g = updated(&pred, &obs, &every_event(), 0).unwrap();
         assert!(g.diverged);
         let expected = (100.0f64.powi(2) - 3.0 * 1e-6 / 3.0 - 3.0) / 6.0;
         assert!(
@@ -450,7 +476,7 @@ mod tests {
         // The nominal NIS is reported: ε²/S_ee = 10⁴/(2 + 1e-6/3 + 1).
         assert!((g.nis - 1.0e4 / (3.0 + 1e-6 / 3.0)).abs() < 1e-6);
         // A small residual: no event, no inflation, the ordinary Kalman update.
-        let g = guarded_update(
+        let g = updated(
             &pred,
             &position(Vector3::new(1.0, 0.0, 0.0), 1.0),
             &every_event(),
@@ -475,7 +501,7 @@ mod tests {
         // P ≈ 0: S ≈ R = I, Tr(S) ≈ 3. εᵀε = 9 - δ: no; 9 + δ: yes (r = 3).
         for (e2, fires) in [(8.99_f64, false), (9.01, true)] {
             let obs = position(Vector3::new(e2.sqrt(), 0.0, 0.0), 1.0);
-            let g = guarded_update(&pred, &obs, &every_event(), 0).unwrap();
+            let g = updated(&pred, &obs, &every_event(), 0).unwrap();
             assert_eq!(g.diverged, fires, "{e2}");
             // Adapt = (εᵀε − 3)/(3·2e-12) is huge: capped at max_adapt.
             assert_eq!(g.adapt, if fires { 1.0e4 } else { 1.0 });
@@ -486,7 +512,7 @@ mod tests {
             ..DivergenceParams::default()
         };
         let obs = position(Vector3::new(2.0, 0.0, 0.0), 1.0);
-        assert!(guarded_update(&pred, &obs, &params, 0).unwrap().diverged);
+        assert!(updated(&pred, &obs, &params, 0).unwrap().diverged);
     }
 
     #[test]
@@ -500,7 +526,7 @@ mod tests {
             value: Vector3::new(200.0, 0.0, 0.0),
             cov,
         });
-        let g = guarded_update(&pred, &obs, &every_event(), 0).unwrap();
+        let g = updated(&pred, &obs, &every_event(), 0).unwrap();
         assert!(g.diverged && g.adapt > 1.0);
     }
 
@@ -543,7 +569,7 @@ mod tests {
             let t = k as f64;
             let z = truth(t) + Vector3::from_fn(|_, _| noise.sample(&mut rng));
             let pred = Prediction::<6>::new(&cv, &x, &p, 1.0);
-            let g = guarded_update(&pred, &position(z, sigma), params, run_length).unwrap();
+            let g = updated(&pred, &position(z, sigma), params, run_length).unwrap();
             run_length = g.run;
             x = g.x;
             p = g.p;

@@ -355,10 +355,17 @@ impl HybridTracker {
         let nis = match &mut self.branch {
             Branch::Cv { x, p } => {
                 let pred = Prediction::<6>::new(&self.params.cv, x, p, dt_s);
-                let g =
-                    guarded_update(&pred, obs, &self.params.divergence, self.cv_divergence_run)?;
-                *x = g.x;
-                *p = g.p;
+                let (mut x_new, mut p_new) = (State6::zeros(), Matrix6::zeros());
+                let g = guarded_update(
+                    &pred,
+                    obs,
+                    &self.params.divergence,
+                    self.cv_divergence_run,
+                    &mut x_new,
+                    &mut p_new,
+                )?;
+                *x = x_new;
+                *p = p_new;
                 // Published: a divergence the suppressor acts on (paper 000's criterion on
                 // `confirm` consecutive reports), not each chance event; a consistent
                 // filter meets the criterion on a few % of reports, four in a row almost
@@ -373,7 +380,7 @@ impl HybridTracker {
                     // Only the velocity block of Adapt·Φ P Φᵀ + Q − P(k|k) is needed.
                     self.velocity_correction_cov = pred.fpf.fixed_view::<3, 3>(3, 3) * g.adapt
                         + pred.q.fixed_view::<3, 3>(3, 3)
-                        - g.p.fixed_view::<3, 3>(3, 3);
+                        - p.fixed_view::<3, 3>(3, 3);
                 }
                 self.stats.cv_updates += 1;
                 g.nis

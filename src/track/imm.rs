@@ -405,16 +405,25 @@ fn guarded_mode<const K: usize>(
     input: &ModeInput,
     write: impl FnOnce(&SVector<f64, K>, &SMatrix<f64, K, K>),
 ) -> Result<ModeOutcome, TrackError> {
-    match guarded_update(pred, input.obs, input.divergence, input.previous_run) {
+    let (mut x, mut p) = (SVector::<f64, K>::zeros(), SMatrix::<f64, K, K>::zeros());
+    let guarded = guarded_update(
+        pred,
+        input.obs,
+        input.divergence,
+        input.previous_run,
+        &mut x,
+        &mut p,
+    );
+    match guarded {
         Ok(g) => {
-            write(&g.x, &g.p);
+            write(&x, &p);
             Ok(ModeOutcome {
                 run: g.run,
                 nis: g.nis,
                 log_likelihood: g.log_likelihood,
                 blocks: g.blocks,
                 correction: pred.covariance_block3(g.adapt, VEL)
-                    - kalman::block::<3, 3, K, K>(&g.p, VEL, VEL),
+                    - kalman::block::<3, 3, K, K>(&p, VEL, VEL),
             })
         }
         Err(e) => {

@@ -267,7 +267,6 @@ pub fn guarded_update<const N: usize>(
     x_out: &mut SVector<f64, N>,
     p_out: &mut SMatrix<f64, N, N>,
 ) -> Result<Guarded, TrackError> {
-    let out = (x_out, p_out);
     match obs {
         Observation::Position(o) => guarded_update_m::<N, 3>(
             pred,
@@ -277,7 +276,8 @@ pub fn guarded_update<const N: usize>(
             &[0],
             params,
             previous_run,
-            out,
+            x_out,
+            p_out,
         ),
         Observation::Velocity(o) => guarded_update_m::<N, 3>(
             pred,
@@ -287,7 +287,8 @@ pub fn guarded_update<const N: usize>(
             &[3],
             params,
             previous_run,
-            out,
+            x_out,
+            p_out,
         ),
         Observation::Both(p, v) => {
             let mut z = SVector::<f64, 6>::zeros();
@@ -304,7 +305,8 @@ pub fn guarded_update<const N: usize>(
                 &[0, 3],
                 params,
                 previous_run,
-                out,
+                x_out,
+                p_out,
             )
         }
     }
@@ -312,7 +314,7 @@ pub fn guarded_update<const N: usize>(
 
 /// [`guarded_update`] for an M-vector z = x[sel] + v whose 3-blocks sit at the state offsets
 /// `blocks`; both Kalman updates are the specialised [`kalman::update_selected_to`], from the
-/// prediction's covariance into the caller's `out`.
+/// prediction's covariance into the caller's `x_out`, `p_out`.
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
 fn guarded_update_m<const N: usize, const M: usize>(
@@ -323,7 +325,8 @@ fn guarded_update_m<const N: usize, const M: usize>(
     blocks: &[usize],
     params: &DivergenceParams,
     previous_run: u32,
-    (x_out, p_out): (&mut SVector<f64, N>, &mut SMatrix<f64, N, N>),
+    x_out: &mut SVector<f64, N>,
+    p_out: &mut SMatrix<f64, N, N>,
 ) -> Result<Guarded, TrackError> {
     let inn = kalman::update_selected_to(&pred.x, &pred.covariance(1.0), z, sel, r, x_out, p_out)?;
     let mut diverged = false;

@@ -13,8 +13,9 @@
 //! time series database", VLDB 8(12), §4.1.1), and latitude, longitude and altitude as their
 //! difference from the previous step scaled to this step's duration (the track's own velocity,
 //! dead-reckoned). Each of the four errors is a zigzag LEB128 varint (the encoding of protocol
-//! buffers' `sint64`). The prediction is integer arithmetic, computed the same way when
-//! writing and when reading, so decoding is exact: what is served is what the integers say.
+//! buffers' `sint64`). The prediction is computed from the stored integers the same way
+//! when writing and when reading ([`predict`]), so decoding is exact: what is served is what
+//! the integers say.
 //! An estimated track is smooth, so the errors are small: an airliner's point, a step of
 //! 250 m/s that took 3 bytes each for latitude and longitude, takes 1 each in straight flight
 //! (about 5 bytes a point where plain differences took 8-10). Points come at most every
@@ -89,7 +90,7 @@ type Step = [i64; 4];
 /// same at 0.3 % of a fleet replay's instructions.)
 fn predict(prev: &Step, dt_ms: i64) -> Step {
     if prev[0] <= 0 {
-        return [prev[0], prev[1], prev[2], prev[3]];
+        return *prev;
     }
     let ratio = dt_ms as f64 / prev[0] as f64;
     let scale = |v: i64| (v as f64 * ratio).round() as i64;

@@ -611,7 +611,7 @@ pub fn update_selected_to<const N: usize, const M: usize>(
     p_out: &mut SMatrix<f64, N, N>,
 ) -> Result<Innovation<M>, TrackError> {
     let post = selected_posterior(x, p, z, sel, r, p_out)?;
-    if !post.x.iter().all(|v| v.is_finite()) || !is_positive_definite(p_out) {
+    if !acceptable(&post.x, p_out) {
         return Err(TrackError::NotPositiveDefinite);
     }
     *x_out = post.x;
@@ -794,13 +794,20 @@ fn accept<const N: usize, const M: usize>(
     residual: SVector<f64, M>,
     s: SMatrix<f64, M, M>,
 ) -> Result<Innovation<M>, TrackError> {
-    if !x_new.iter().all(|v| v.is_finite()) || !is_positive_definite(&p_new) {
+    if !acceptable(&x_new, &p_new) {
         return Err(TrackError::NotPositiveDefinite);
     }
     let inn = innovation(chol, residual, s)?;
     *x = x_new;
     *p = p_new;
     Ok(inn)
+}
+
+/// Whether an update's posterior may be taken: a finite state and a positive definite
+/// covariance.
+#[inline(always)]
+fn acceptable<const N: usize>(x: &SVector<f64, N>, p: &SMatrix<f64, N, N>) -> bool {
+    x.iter().all(|v| v.is_finite()) && is_positive_definite(p)
 }
 
 /// The innovation of an accepted update: the NIS from S's Cholesky factor.

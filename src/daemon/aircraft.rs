@@ -426,21 +426,12 @@ impl Aircraft {
         let frame = self.frame?;
         let mut predictions = Vec::with_capacity(horizons_s.len());
         let mut ok = publishable(&estimate);
-        for &dt_s in horizons_s {
-            if !ok {
-                break;
-            }
-            let Some(p) = self.tracker.predict(estimate.t_s + dt_s) else {
-                continue;
-            };
-            let p = PredictionEnu {
-                dt_s,
-                t_s: p.t_s,
-                pos_m: p.pos_m,
-                pos_sigma_m: p.pos_sigma_m(),
-            };
-            ok = p.t_s.is_finite() && publishable_point(&p.pos_m) && p.pos_sigma_m.is_finite();
-            predictions.push(p);
+        if ok {
+            self.tracker
+                .predict_positions(estimate.t_s, horizons_s, &mut predictions);
+            ok = predictions.iter().all(|p: &PredictionEnu| {
+                p.t_s.is_finite() && publishable_point(&p.pos_m) && p.pos_sigma_m.is_finite()
+            });
         }
         if !ok {
             tracing::debug!(icao = %self.icao, "non-finite or runaway estimate: track reset");

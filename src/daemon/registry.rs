@@ -19,7 +19,7 @@ use crate::decode::{Callsign, Icao};
 use crate::track::geo::LocalFrame;
 use crate::track::{Estimate, Lateral, SpeedTrend, TurnDirection, VerticalTrend};
 use arc_swap::{ArcSwap, ArcSwapOption};
-use nalgebra::{Matrix3, Vector3};
+use nalgebra::Matrix3;
 use serde::Serialize;
 use std::collections::HashMap;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -145,18 +145,9 @@ pub struct Prediction {
     pub pos_sigma_m: f64,
 }
 
-/// A prediction in the track's plane, as published (converted on read).
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct PredictionEnu {
-    /// Seconds ahead of the estimate.
-    pub dt_s: f64,
-    /// Feed time of the prediction, s.
-    pub t_s: f64,
-    /// Position, m, in the track's plane.
-    pub pos_m: Vector3<f64>,
-    /// 1-sigma horizontal position uncertainty, m.
-    pub pos_sigma_m: f64,
-}
+/// A prediction in the track's plane, as published (converted on read): the tracker's
+/// [`PositionPrediction`](crate::track::PositionPrediction) as it is.
+pub type PredictionEnu = crate::track::PositionPrediction;
 
 /// What an aircraft said about itself, as decoded (no text made yet). Serialisable: a cluster
 /// track node puts it in the tracks bucket as is (`cluster::state`).

@@ -10,7 +10,7 @@
 //! for any T: ADS-B reports are irregular, so T is always the actual time between reports.
 
 use super::kalman::{self, Innovation, MotionModel};
-use super::{Estimate, FlightMode, Measurement, Observed, TrackError, Tracker};
+use super::{Estimate, FlightMode, Measurement, Observed, PositionPrediction, TrackError, Tracker};
 use nalgebra::{Matrix3, SMatrix, SVector, Vector3};
 
 /// 6-state vector [e, n, u, ve, vn, vu].
@@ -418,6 +418,33 @@ impl Tracker for CvKalman {
         let (mut x, mut p) = (track.x, track.p);
         self.model.predict(&mut x, &mut p, dt_s);
         Some(self.estimate_of(t_s, &x, &p))
+    }
+
+    /// [`Tracker::predict`]'s prediction, position and σ alone (no estimate formed).
+    fn predict_positions(
+        &self,
+        base_t_s: f64,
+        horizons_s: &[f64],
+        out: &mut Vec<PositionPrediction>,
+    ) {
+        let Some(track) = self.track.as_ref() else {
+            return;
+        };
+        for &ahead_s in horizons_s {
+            let t_s = base_t_s + ahead_s;
+            let dt_s = t_s - track.t_s;
+            if !dt_s.is_finite() || dt_s < 0.0 {
+                continue;
+            }
+            let (mut x, mut p) = (track.x, track.p);
+            self.model.predict(&mut x, &mut p, dt_s);
+            out.push(PositionPrediction {
+                dt_s: ahead_s,
+                t_s,
+                pos_m: kalman::rows::<3, _>(&x, 0),
+                pos_sigma_m: super::horizontal_sigma(p[(0, 0)], p[(1, 1)]),
+            });
+        }
     }
 }
 
@@ -847,5 +874,53 @@ mod tests {
         let est = kf.estimate().unwrap();
         assert!(!est.diverging);
         assert!(est.divergence_events > 1);
+    }
+
+    /// The published predictions ([`Tracker::predict_positions`]) are those of a whole
+    /// estimate per horizon, bit for bit.
+    #[test]
+    fn published_predictions_are_the_estimates_predictions() {
+        let mut rng = StdRng::seed_from_u64(5);
+        let mut tracker = CvKalman::new(CvParams::default());
+        let horizons_s = [0.0, 5.0, 10.0, 30.0, -3.0, f64::NAN];
+        let (mut own, mut by_estimate) = (Vec::new(), Vec::new());
+        let sigma = Vector3::new(10.0, 10.0, 15.0);
+        for k in 0..200 {
+            let t_s = 0.5 * f64::from(k);
+            let truth = Vector3::new(200.0 * t_s, 30.0 * t_s, 3000.0);
+            let m = Measurement {
+                t_s,
+                position: Some(observed(truth + gaussian3(&mut rng, &sigma), &sigma)),
+                velocity: (k % 2 == 1)
+                    .then(|| observed(Vector3::new(200.0, 30.0, 0.0), &Vector3::repeat(0.5))),
+            };
+            tracker.update(&m).unwrap();
+            own.clear();
+            by_estimate.clear();
+            tracker.predict_positions(t_s, &horizons_s, &mut own);
+            crate::track::predict_positions_by_estimate(
+                &tracker,
+                t_s,
+                &horizons_s,
+                &mut by_estimate,
+            );
+            assert_eq!(own.len(), 4);
+            let bits = |v: &[PositionPrediction]| {
+                v.iter()
+                    .flat_map(|p| {
+                        [
+                            p.dt_s,
+                            p.t_s,
+                            p.pos_m.x,
+                            p.pos_m.y,
+                            p.pos_m.z,
+                            p.pos_sigma_m,
+                        ]
+                    })
+                    .map(f64::to_bits)
+                    .collect::<Vec<_>>()
+            };
+            assert_eq!(bits(&own), bits(&by_estimate), "t {t_s}");
+        }
     }
 }

@@ -43,7 +43,8 @@ use super::models::{Cv, Matrix6, Matrix9, Model, State6, State9, ACC};
 use super::nis::NisWindow;
 use super::noise::{local_up, NoiseLearner, NoiseParams};
 use super::{
-    Estimate, FlightMode, Lateral, Measurement, Observed, TrackError, Tracker, TurnDirection,
+    Estimate, FlightMode, Lateral, Measurement, Observed, PositionPrediction, TrackError, Tracker,
+    TurnDirection,
 };
 use nalgebra::{Matrix3, Vector3};
 
@@ -735,6 +736,53 @@ impl Tracker for HybridTracker {
         };
         Some(self.noise.with_position_bias(est))
     }
+
+    /// [`Tracker::predict`]'s predictions, position and σ alone: no estimate formed, and
+    /// while the IMM runs its combined estimate formed once for every horizon.
+    fn predict_positions(
+        &self,
+        base_t_s: f64,
+        horizons_s: &[f64],
+        out: &mut Vec<PositionPrediction>,
+    ) {
+        let Some(track_t_s) = self.init.track_t_s() else {
+            return;
+        };
+        // (horizon, its time, dt from the track) for the horizons that can be predicted.
+        let steps = horizons_s.iter().filter_map(|&ahead_s| {
+            let t_s = base_t_s + ahead_s;
+            let dt_s = t_s - track_t_s;
+            (dt_s.is_finite() && dt_s >= 0.0).then_some(((ahead_s, t_s), dt_s))
+        });
+        // [`NoiseLearner::with_position_bias`] on the horizontal variances, then the σ.
+        let bias = self.noise.position_bias_var();
+        let mut push = |(ahead_s, t_s): (f64, f64), x: &State6, p: &Matrix6| {
+            let (mut var_e, mut var_n) = (p[(0, 0)], p[(1, 1)]);
+            if bias > 0.0 {
+                var_e += bias;
+                var_n += bias;
+            }
+            out.push(PositionPrediction {
+                dt_s: ahead_s,
+                t_s,
+                pos_m: kalman::rows::<3, _>(x, 0),
+                pos_sigma_m: super::horizontal_sigma(var_e, var_n),
+            });
+        };
+        match &self.branch {
+            Branch::Cv { x, p } => {
+                for (tag, dt_s) in steps {
+                    let (mut x, mut p) = (*x, *p);
+                    MotionModel::<6>::predict(&self.params.cv, &mut x, &mut p, dt_s);
+                    push(tag, &x, &p);
+                }
+            }
+            Branch::Imm { .. } => {
+                self.imm
+                    .predicted_positions_velocities(&self.label_model(), steps, push);
+            }
+        }
+    }
 }
 
 #[cfg(test)]
@@ -1354,6 +1402,81 @@ mod tests {
         assert!(in_turn > 300, "{in_turn} updates in turns");
         // The turn modes dominate either way: 4 cm apart at most on this run.
         assert!(worst_m < 0.5, "{worst_m} m");
+    }
+
+    /// Horizons the daemon publishes, one in the past (refused) and one non-finite.
+    const HORIZONS_S: [f64; 6] = [0.0, 5.0, 10.0, 30.0, -3.0, f64::NAN];
+
+    /// The published predictions ([`Tracker::predict_positions`]) are those of a whole
+    /// estimate per horizon, bit for bit, in both branches, with and without the declared
+    /// position bias, on a departure (accelerations, a climb, a turn) fed as ADS-B sends it.
+    #[test]
+    fn published_predictions_are_the_estimates_predictions() {
+        let mut rng = StdRng::seed_from_u64(11);
+        let times = report_times(&mut rng, 420.0);
+        let truth = fly(
+            Vector3::new(0.0, 0.0, 500.0),
+            0.3,
+            80.0,
+            &departure_legs(),
+            &times,
+        );
+        let reps = reports(&truth, Feed::Alternating, &mut rng);
+        for declared in [false, true] {
+            let mut tracker = HybridTracker::default();
+            tracker.set_accuracy_declared(declared);
+            let (mut in_imm, mut in_cv, mut biased) = (0, 0, 0);
+            let (mut own, mut by_estimate) = (Vec::new(), Vec::new());
+            for m in &reps {
+                tracker.update(m).unwrap();
+                let Some(e) = tracker.estimate() else {
+                    continue;
+                };
+                own.clear();
+                by_estimate.clear();
+                tracker.predict_positions(e.t_s, &HORIZONS_S, &mut own);
+                crate::track::predict_positions_by_estimate(
+                    &tracker,
+                    e.t_s,
+                    &HORIZONS_S,
+                    &mut by_estimate,
+                );
+                assert_eq!(own.len(), 4, "t {}", m.t_s);
+                let bits = |v: &[PositionPrediction]| {
+                    v.iter()
+                        .flat_map(|p| {
+                            [
+                                p.dt_s,
+                                p.t_s,
+                                p.pos_m.x,
+                                p.pos_m.y,
+                                p.pos_m.z,
+                                p.pos_sigma_m,
+                            ]
+                        })
+                        .map(f64::to_bits)
+                        .collect::<Vec<_>>()
+                };
+                assert_eq!(bits(&own), bits(&by_estimate), "t {}", m.t_s);
+                if tracker.in_imm() {
+                    in_imm += 1;
+                } else {
+                    in_cv += 1;
+                }
+                if tracker.noise.position_bias_var() > 0.0 {
+                    biased += 1;
+                }
+            }
+            assert!(
+                in_imm > 100 && in_cv > 100,
+                "{in_imm} in the IMM, {in_cv} in CV"
+            );
+            assert_eq!(
+                biased > 0,
+                declared,
+                "{biased} predictions with a position bias"
+            );
+        }
     }
 
     #[test]

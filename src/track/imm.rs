@@ -890,27 +890,47 @@ impl Imm {
     /// acceleration), whose F is bordered by zeros in the 9-state one, so the numbers are
     /// those of predicting [`Imm::combined`] in 9 states (tested) for a fraction of the work.
     pub fn predicted_position_velocity(&self, model: &Model, dt_s: f64) -> (State6, Matrix6) {
+        let mut out = (State6::zeros(), Matrix6::zeros());
+        self.predicted_positions_velocities(model, std::iter::once(((), dt_s)), |(), x, p| {
+            out = (*x, *p);
+        });
+        out
+    }
+
+    /// [`Imm::predicted_position_velocity`] for each `(tag, dt_s)` of `steps`, the combined
+    /// estimate formed once for all of them: `each(tag, x, P)` in order.
+    pub fn predicted_positions_velocities<T>(
+        &self,
+        model: &Model,
+        steps: impl Iterator<Item = (T, f64)>,
+        mut each: impl FnMut(T, &State6, &Matrix6),
+    ) {
         match model {
-            Model::Cv(m) => self.predicted_leading::<6>(m, dt_s),
-            Model::Ct(m) => self.predicted_leading::<6>(m, dt_s),
-            Model::Ch(m) => self.predicted_leading::<6>(m, dt_s),
-            Model::Ca(m) => self.predicted_leading::<8>(m, dt_s),
-            Model::Chca(m) => self.predicted_leading::<8>(m, dt_s),
+            Model::Cv(m) => self.predicted_leading::<6, T>(m, steps, &mut each),
+            Model::Ct(m) => self.predicted_leading::<6, T>(m, steps, &mut each),
+            Model::Ch(m) => self.predicted_leading::<6, T>(m, steps, &mut each),
+            Model::Ca(m) => self.predicted_leading::<8, T>(m, steps, &mut each),
+            Model::Chca(m) => self.predicted_leading::<8, T>(m, steps, &mut each),
         }
     }
 
-    fn predicted_leading<const K: usize>(
+    fn predicted_leading<const K: usize, T>(
         &self,
         model: &impl ResetTail<K>,
-        dt_s: f64,
-    ) -> (State6, Matrix6) {
-        let (mut x, mut p) = self.combined_leading::<K>();
-        let (f, q) = model.leading_fq(dt_s);
-        kalman::predict(&mut x, &mut p, &f, &q);
-        (
-            kalman::rows::<6, _>(&x, 0),
-            kalman::block::<6, 6, _, _>(&p, 0, 0),
-        )
+        steps: impl Iterator<Item = (T, f64)>,
+        each: &mut impl FnMut(T, &State6, &Matrix6),
+    ) {
+        let (x0, p0) = self.combined_leading::<K>();
+        for (tag, dt_s) in steps {
+            let (mut x, mut p) = (x0, p0);
+            let (f, q) = model.leading_fq(dt_s);
+            kalman::predict(&mut x, &mut p, &f, &q);
+            each(
+                tag,
+                &kalman::rows::<6, _>(&x, 0),
+                &kalman::block::<6, 6, _, _>(&p, 0, 0),
+            );
+        }
     }
 }
 

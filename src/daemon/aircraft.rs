@@ -371,8 +371,7 @@ impl Aircraft {
         };
         let sigma_h = epu_m / RADIUS95_PER_SIGMA_2D;
         let h_var = sigma_h * sigma_h + CPR_QUANT_VAR_M2;
-        let local_cov = Matrix3::from_diagonal(&Vector3::new(h_var, h_var, v_var));
-        let cov = crate::track::geo::rotate_cov(&rotation, &local_cov);
+        let cov = crate::track::geo::rotate_diag_cov(&rotation, &Vector3::new(h_var, h_var, v_var));
         Some(Measurement {
             t_s: t,
             position: Some(Observed { value: enu, cov }),
@@ -405,10 +404,9 @@ impl Aircraft {
     /// before the first position (the frame's axes are unknown until then).
     fn velocity_observation(&self, local: Vector3<f64>, var: (f64, f64, f64)) -> Option<Observed> {
         let rotation = self.last_rotation.as_ref()?;
-        let local_cov = Matrix3::from_diagonal(&Vector3::new(var.0, var.1, var.2));
         Some(Observed {
             value: rotation * local,
-            cov: crate::track::geo::rotate_cov(rotation, &local_cov),
+            cov: crate::track::geo::rotate_diag_cov(rotation, &Vector3::new(var.0, var.1, var.2)),
         })
     }
 

@@ -202,10 +202,54 @@ pub fn rotate_cov(rotation: &Matrix3<f64>, cov: &Matrix3<f64>) -> Matrix3<f64> {
     (c + c.transpose()) * 0.5
 }
 
+/// [`rotate_cov`] of the diagonal covariance diag(`var`), the same numbers bit for bit
+/// (tested) with the products by its zeros left out: every report's covariance is one (its
+/// axes are the local east, north and up), and the two generic 3x3 products cost 3 % of a
+/// `kalman-cv` fleet replay's instructions.
+///
+/// The generic product sums each entry over k ascending, (a₀b₀ + a₁b₁) + a₂b₂; here the
+/// terms of a zero of diag(var) are dropped from R·diag(var), which adds nothing but a
+/// signed zero to a non-zero term, and R·diag(var)·Rᵀ keeps the generic order.
+pub fn rotate_diag_cov(rotation: &Matrix3<f64>, var: &Vector3<f64>) -> Matrix3<f64> {
+    let rd = Matrix3::from_fn(|i, j| rotation[(i, j)] * var[j]);
+    let c = Matrix3::from_fn(|i, j| {
+        rd[(i, 0)] * rotation[(j, 0)]
+            + rd[(i, 1)] * rotation[(j, 1)]
+            + rd[(i, 2)] * rotation[(j, 2)]
+    });
+    (c + c.transpose()) * 0.5
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use rand::{Rng, SeedableRng};
+
+    /// [`rotate_diag_cov`] is [`rotate_cov`] of the diagonal matrix, bit for bit, for the
+    /// rotations of frames anywhere on the globe and variances over many decades.
+    #[test]
+    fn diagonal_rotation_is_the_generic_one_bit_for_bit() {
+        let mut rng = rand::rngs::StdRng::seed_from_u64(3);
+        for _ in 0..20_000 {
+            let frame = LocalFrame::new(
+                rng.gen_range(-89.0..89.0),
+                rng.gen_range(-180.0..180.0),
+                0.0,
+            );
+            let r =
+                frame.rotation_from_local(rng.gen_range(-89.9..89.9), rng.gen_range(-180.0..180.0));
+            let var = Vector3::from_fn(|_, _| 10f64.powf(rng.gen_range(-6.0..8.0)));
+            let generic = rotate_cov(&r, &Matrix3::from_diagonal(&var));
+            let diagonal = rotate_diag_cov(&r, &var);
+            let bits = |m: &Matrix3<f64>| m.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+            assert_eq!(bits(&diagonal), bits(&generic), "R {r}, var {var}");
+            let rt = r.transpose();
+            assert_eq!(
+                bits(&rotate_diag_cov(&rt, &var)),
+                bits(&rotate_cov(&rt, &Matrix3::from_diagonal(&var)))
+            );
+        }
+    }
 
     /// Metres per degree of latitude, roughly: converts an angular error into metres for
     /// the round-trip bounds (the bounds are three orders of magnitude above the errors).

@@ -449,13 +449,13 @@ impl Aircraft {
     /// The estimate's time and geodetic position (lat, lon in degrees, altitude in m), for
     /// the trail; `None` without an estimate or when it could not be published.
     pub fn position(&self) -> Option<(f64, f64, f64, f64)> {
-        let estimate = self.tracker.estimate()?;
+        let (t_s, pos_m) = self.tracker.estimated_position()?;
         let frame = self.frame?;
-        if !(estimate.t_s.is_finite() && publishable_point(&estimate.pos_m)) {
+        if !(t_s.is_finite() && publishable_point(&pos_m)) {
             return None;
         }
-        let (lat, lon, alt_m) = frame.to_geodetic(&estimate.pos_m);
-        Some((estimate.t_s, lat, lon, alt_m))
+        let (lat, lon, alt_m) = frame.to_geodetic(&pos_m);
+        Some((t_s, lat, lon, alt_m))
     }
 
     /// The state with predicted positions `horizons_s` seconds ahead (checked as

@@ -405,6 +405,12 @@ impl Tracker for CvKalman {
             .map(|t| self.estimate_of(t.t_s, &t.x, &t.p))
     }
 
+    fn estimated_position(&self) -> Option<(f64, Vector3<f64>)> {
+        self.track
+            .as_ref()
+            .map(|t| (t.t_s, kalman::rows::<3, _>(&t.x, 0)))
+    }
+
     fn has_track(&self) -> bool {
         self.track.is_some()
     }
@@ -877,7 +883,8 @@ mod tests {
     }
 
     /// The published predictions ([`Tracker::predict_positions`]) are those of a whole
-    /// estimate per horizon, bit for bit.
+    /// estimate per horizon, and the trail's position ([`Tracker::estimated_position`]) the
+    /// estimate's, bit for bit.
     #[test]
     fn published_predictions_are_the_estimates_predictions() {
         let mut rng = StdRng::seed_from_u64(5);
@@ -921,6 +928,8 @@ mod tests {
                     .collect::<Vec<_>>()
             };
             assert_eq!(bits(&own), bits(&by_estimate), "t {t_s}");
+            let e = tracker.estimate().unwrap();
+            assert_eq!(tracker.estimated_position(), Some((e.t_s, e.pos_m)));
         }
     }
 }

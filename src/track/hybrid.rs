@@ -708,6 +708,11 @@ impl Tracker for HybridTracker {
         Some(self.noise.with_position_bias(est))
     }
 
+    fn estimated_position(&self) -> Option<(f64, Vector3<f64>)> {
+        let t_s = self.init.track_t_s()?;
+        Some((t_s, self.position_m()))
+    }
+
     fn has_track(&self) -> bool {
         self.init.track_t_s().is_some()
     }
@@ -1408,7 +1413,8 @@ mod tests {
     const HORIZONS_S: [f64; 6] = [0.0, 5.0, 10.0, 30.0, -3.0, f64::NAN];
 
     /// The published predictions ([`Tracker::predict_positions`]) are those of a whole
-    /// estimate per horizon, bit for bit, in both branches, with and without the declared
+    /// estimate per horizon, and the trail's position ([`Tracker::estimated_position`])
+    /// the estimate's, bit for bit, in both branches, with and without the declared
     /// position bias, on a departure (accelerations, a climb, a turn) fed as ADS-B sends it.
     #[test]
     fn published_predictions_are_the_estimates_predictions() {
@@ -1458,6 +1464,12 @@ mod tests {
                         .collect::<Vec<_>>()
                 };
                 assert_eq!(bits(&own), bits(&by_estimate), "t {}", m.t_s);
+                let (t_s, pos_m) = tracker.estimated_position().unwrap();
+                assert_eq!(t_s.to_bits(), e.t_s.to_bits());
+                assert!(pos_m
+                    .iter()
+                    .zip(e.pos_m.iter())
+                    .all(|(a, b)| a.to_bits() == b.to_bits()));
                 if tracker.in_imm() {
                     in_imm += 1;
                 } else {

@@ -262,6 +262,13 @@ pub trait Tracker: Send {
     /// The current (filtered) estimate, `None` before initiation.
     fn estimate(&self) -> Option<Estimate>;
 
+    /// The current estimate's time and position alone ([`Tracker::estimate`]'s `t_s` and
+    /// `pos_m`, the same numbers): what the daemon's trail records after every batch of
+    /// reports, where a whole estimate (covariances, labels, NIS) was formed for two fields.
+    fn estimated_position(&self) -> Option<(f64, Vector3<f64>)> {
+        self.estimate().map(|e| (e.t_s, e.pos_m))
+    }
+
     /// Whether there is a track: [`Tracker::estimate`] would be `Some`. The daemon asks after
     /// every report without a position (did a long gap end the track?), and forming a whole
     /// estimate to answer cost 1-2 % of the fleet replay's instructions; the trackers with a

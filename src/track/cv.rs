@@ -890,7 +890,6 @@ mod tests {
         let mut rng = StdRng::seed_from_u64(5);
         let mut tracker = CvKalman::new(CvParams::default());
         let horizons_s = [0.0, 5.0, 10.0, 30.0, -3.0, f64::NAN];
-        let (mut own, mut by_estimate) = (Vec::new(), Vec::new());
         let sigma = Vector3::new(10.0, 10.0, 15.0);
         for k in 0..200 {
             let t_s = 0.5 * f64::from(k);
@@ -902,34 +901,10 @@ mod tests {
                     .then(|| observed(Vector3::new(200.0, 30.0, 0.0), &Vector3::repeat(0.5))),
             };
             tracker.update(&m).unwrap();
-            own.clear();
-            by_estimate.clear();
-            tracker.predict_positions(t_s, &horizons_s, &mut own);
-            crate::track::predict_positions_by_estimate(
-                &tracker,
-                t_s,
-                &horizons_s,
-                &mut by_estimate,
+            assert_eq!(
+                crate::track::assert_reads_match_the_estimate(&tracker, &horizons_s),
+                4
             );
-            assert_eq!(own.len(), 4);
-            let bits = |v: &[PositionPrediction]| {
-                v.iter()
-                    .flat_map(|p| {
-                        [
-                            p.dt_s,
-                            p.t_s,
-                            p.pos_m.x,
-                            p.pos_m.y,
-                            p.pos_m.z,
-                            p.pos_sigma_m,
-                        ]
-                    })
-                    .map(f64::to_bits)
-                    .collect::<Vec<_>>()
-            };
-            assert_eq!(bits(&own), bits(&by_estimate), "t {t_s}");
-            let e = tracker.estimate().unwrap();
-            assert_eq!(tracker.estimated_position(), Some((e.t_s, e.pos_m)));
         }
     }
 }

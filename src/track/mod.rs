@@ -182,6 +182,52 @@ pub fn predict_positions_by_estimate<T: Tracker + ?Sized>(
     }
 }
 
+/// Test support: the tracker's own [`Tracker::predict_positions`] and
+/// [`Tracker::estimated_position`] give, bit for bit, what its whole estimates give
+/// ([`predict_positions_by_estimate`], [`Tracker::estimate`]). Returns the number of
+/// predictions compared; nothing to compare (no track) is 0.
+#[cfg(test)]
+pub(crate) fn assert_reads_match_the_estimate<T: Tracker + ?Sized>(
+    tracker: &T,
+    horizons_s: &[f64],
+) -> usize {
+    let Some(e) = tracker.estimate() else {
+        return 0;
+    };
+    let (mut own, mut by_estimate) = (Vec::new(), Vec::new());
+    tracker.predict_positions(e.t_s, horizons_s, &mut own);
+    predict_positions_by_estimate(tracker, e.t_s, horizons_s, &mut by_estimate);
+    let bits = |v: &[PositionPrediction]| {
+        v.iter()
+            .flat_map(|p| {
+                [
+                    p.dt_s,
+                    p.t_s,
+                    p.pos_m.x,
+                    p.pos_m.y,
+                    p.pos_m.z,
+                    p.pos_sigma_m,
+                ]
+            })
+            .map(f64::to_bits)
+            .collect::<Vec<_>>()
+    };
+    assert_eq!(bits(&own), bits(&by_estimate), "t {}", e.t_s);
+    let (t_s, pos_m) = tracker
+        .estimated_position()
+        .unwrap_or((f64::NAN, Vector3::zeros()));
+    assert_eq!(t_s.to_bits(), e.t_s.to_bits());
+    assert!(
+        pos_m
+            .iter()
+            .zip(e.pos_m.iter())
+            .all(|(a, b)| a.to_bits() == b.to_bits()),
+        "{pos_m} against {}",
+        e.pos_m
+    );
+    own.len()
+}
+
 /// A tracker's estimate at a time.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Estimate {

@@ -331,9 +331,10 @@ pub trait Tracker: Send {
     /// the position and its horizontal σ and appended to `out` (a horizon the tracker cannot
     /// predict is left out). The daemon asks for these with every snapshot it publishes;
     /// forming a whole estimate per horizon (labels, velocity, NIS) to read three numbers
-    /// cost `kalman-cv` 2 % of a fleet replay's instructions, so the trackers with a cheaper
-    /// way give it, with the same numbers (tested against
-    /// [`predict_positions_by_estimate`], the default).
+    /// was 1.4 % of a `kalman-cv` fleet replay's instructions, and the hybrid's IMM formed
+    /// its combined estimate once per horizon, so the trackers with a cheaper way give it,
+    /// with the same numbers (tested against [`predict_positions_by_estimate`], the
+    /// default).
     fn predict_positions(
         &self,
         base_t_s: f64,

@@ -259,6 +259,19 @@ impl CvKalman {
         residual.norm_squared() > self.params.divergence_r * s_pos.trace()
     }
 
+    /// The track's state and covariance predicted to `t_s` (at or after the track's time),
+    /// what [`Tracker::predict`] and [`Tracker::predict_positions`] read.
+    fn predicted(&self, t_s: f64) -> Option<(State6, Matrix6)> {
+        let track = self.track.as_ref()?;
+        let dt_s = t_s - track.t_s;
+        if !dt_s.is_finite() || dt_s < 0.0 {
+            return None;
+        }
+        let (mut x, mut p) = (track.x, track.p);
+        self.model.predict(&mut x, &mut p, dt_s);
+        Some((x, p))
+    }
+
     fn estimate_of(&self, t_s: f64, x: &State6, p: &Matrix6) -> Estimate {
         Estimate {
             t_s,
@@ -416,13 +429,7 @@ impl Tracker for CvKalman {
     }
 
     fn predict(&self, t_s: f64) -> Option<Estimate> {
-        let track = self.track.as_ref()?;
-        let dt_s = t_s - track.t_s;
-        if !dt_s.is_finite() || dt_s < 0.0 {
-            return None;
-        }
-        let (mut x, mut p) = (track.x, track.p);
-        self.model.predict(&mut x, &mut p, dt_s);
+        let (x, p) = self.predicted(t_s)?;
         Some(self.estimate_of(t_s, &x, &p))
     }
 
@@ -433,17 +440,11 @@ impl Tracker for CvKalman {
         horizons_s: &[f64],
         out: &mut Vec<PositionPrediction>,
     ) {
-        let Some(track) = self.track.as_ref() else {
-            return;
-        };
         for &ahead_s in horizons_s {
             let t_s = base_t_s + ahead_s;
-            let dt_s = t_s - track.t_s;
-            if !dt_s.is_finite() || dt_s < 0.0 {
+            let Some((x, p)) = self.predicted(t_s) else {
                 continue;
-            }
-            let (mut x, mut p) = (track.x, track.p);
-            self.model.predict(&mut x, &mut p, dt_s);
+            };
             out.push(PositionPrediction {
                 dt_s: ahead_s,
                 t_s,

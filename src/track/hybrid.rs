@@ -482,6 +482,41 @@ impl HybridTracker {
         }
     }
 
+    /// The track predicted to each `(tag, t_s)` of `steps` by the current label's model
+    /// ([`Tracker::predict`]): `each(tag, t_s, x, P)`, position and velocity, for the times
+    /// at or after the track's (the others are skipped); the IMM's combined estimate is
+    /// formed once for all of them. What a whole estimate and a published prediction share.
+    fn predicted<T>(
+        &self,
+        steps: impl Iterator<Item = (T, f64)>,
+        mut each: impl FnMut(T, f64, &State6, &Matrix6),
+    ) {
+        let Some(track_t_s) = self.init.track_t_s() else {
+            return;
+        };
+        // (tag and time, dt from the track) for the times that can be predicted.
+        let steps = steps.filter_map(|(tag, t_s)| {
+            let dt_s = t_s - track_t_s;
+            (dt_s.is_finite() && dt_s >= 0.0).then_some(((tag, t_s), dt_s))
+        });
+        match &self.branch {
+            Branch::Cv { x, p } => {
+                for ((tag, t_s), dt_s) in steps {
+                    let (mut x, mut p) = (*x, *p);
+                    MotionModel::<6>::predict(&self.params.cv, &mut x, &mut p, dt_s);
+                    each(tag, t_s, &x, &p);
+                }
+            }
+            Branch::Imm { .. } => {
+                self.imm.predicted_positions_velocities(
+                    &self.label_model(),
+                    steps,
+                    |(tag, t_s), x, p| each(tag, t_s, x, p),
+                );
+            }
+        }
+    }
+
     /// The turn rate for the CT models: the rate of the current turn since it began, as the
     /// gate measures it, while a turn holds; the configured rate otherwise.
     /// `stale`: no measured velocity ([`HybridTracker::velocity_stale`]), so no rate
@@ -720,26 +755,12 @@ impl Tracker for HybridTracker {
     /// Extrapolates by the current label's model (paper 002 §1.3), its Q added; CT at the
     /// turn rate in use (the gate's when `adapt_turn_rate`).
     fn predict(&self, t_s: f64) -> Option<Estimate> {
-        let track_t_s = self.init.track_t_s()?;
-        let dt_s = t_s - track_t_s;
-        if !dt_s.is_finite() || dt_s < 0.0 {
-            return None;
-        }
         let info = self.info();
-        let est = match &self.branch {
-            Branch::Cv { x, p } => {
-                let (mut x, mut p) = (*x, *p);
-                MotionModel::<6>::predict(&self.params.cv, &mut x, &mut p, dt_s);
-                estimate_of(t_s, &x, &p, &info)
-            }
-            Branch::Imm { .. } => {
-                let (x, p) = self
-                    .imm
-                    .predicted_position_velocity(&self.label_model(), dt_s);
-                estimate_of(t_s, &x, &p, &info)
-            }
-        };
-        Some(self.noise.with_position_bias(est))
+        let mut est = None;
+        self.predicted(std::iter::once(((), t_s)), |(), t_s, x, p| {
+            est = Some(self.noise.with_position_bias(estimate_of(t_s, x, p, &info)));
+        });
+        est
     }
 
     /// [`Tracker::predict`]'s predictions, position and σ alone: no estimate formed, and
@@ -750,43 +771,18 @@ impl Tracker for HybridTracker {
         horizons_s: &[f64],
         out: &mut Vec<PositionPrediction>,
     ) {
-        let Some(track_t_s) = self.init.track_t_s() else {
-            return;
-        };
-        // (horizon, its time, dt from the track) for the horizons that can be predicted.
-        let steps = horizons_s.iter().filter_map(|&ahead_s| {
-            let t_s = base_t_s + ahead_s;
-            let dt_s = t_s - track_t_s;
-            (dt_s.is_finite() && dt_s >= 0.0).then_some(((ahead_s, t_s), dt_s))
-        });
-        // [`NoiseLearner::with_position_bias`] on the horizontal variances, then the σ.
-        let bias = self.noise.position_bias_var();
-        let mut push = |(ahead_s, t_s): (f64, f64), x: &State6, p: &Matrix6| {
-            let (mut var_e, mut var_n) = (p[(0, 0)], p[(1, 1)]);
-            if bias > 0.0 {
-                var_e += bias;
-                var_n += bias;
-            }
+        let steps = horizons_s
+            .iter()
+            .map(|&ahead_s| (ahead_s, base_t_s + ahead_s));
+        self.predicted(steps, |ahead_s, t_s, x, p| {
+            let (var_e, var_n) = self.noise.with_position_bias_var(p[(0, 0)], p[(1, 1)]);
             out.push(PositionPrediction {
                 dt_s: ahead_s,
                 t_s,
                 pos_m: kalman::rows::<3, _>(x, 0),
                 pos_sigma_m: super::horizontal_sigma(var_e, var_n),
             });
-        };
-        match &self.branch {
-            Branch::Cv { x, p } => {
-                for (tag, dt_s) in steps {
-                    let (mut x, mut p) = (*x, *p);
-                    MotionModel::<6>::predict(&self.params.cv, &mut x, &mut p, dt_s);
-                    push(tag, &x, &p);
-                }
-            }
-            Branch::Imm { .. } => {
-                self.imm
-                    .predicted_positions_velocities(&self.label_model(), steps, push);
-            }
-        }
+        });
     }
 }
 

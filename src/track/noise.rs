@@ -268,12 +268,23 @@ impl NoiseLearner {
     /// `est` with the correlated position error the filter does not carry
     /// ([`NoiseLearner::position_bias_var`]) added to its horizontal position covariance.
     pub fn with_position_bias(&self, mut est: Estimate) -> Estimate {
+        let (var_e, var_n) =
+            self.with_position_bias_var(est.pos_cov_m2[(0, 0)], est.pos_cov_m2[(1, 1)]);
+        est.pos_cov_m2[(0, 0)] = var_e;
+        est.pos_cov_m2[(1, 1)] = var_n;
+        est
+    }
+
+    /// The east and north position variances `var_e`, `var_n` with that error added (what
+    /// [`NoiseLearner::with_position_bias`] does to an estimate, for a prediction that
+    /// carries only its horizontal σ).
+    pub fn with_position_bias_var(&self, var_e: f64, var_n: f64) -> (f64, f64) {
         let b = self.position_bias_var();
         if b > 0.0 {
-            est.pos_cov_m2[(0, 0)] += b;
-            est.pos_cov_m2[(1, 1)] += b;
+            (var_e + b, var_n + b)
+        } else {
+            (var_e, var_n)
         }
-        est
     }
 
     /// The correlated position error's variance per horizontal axis, m² (module doc): the

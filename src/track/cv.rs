@@ -119,6 +119,13 @@ impl MotionModel<6> for CvModel {
     /// P = [[A, B], [Bᵀ, C]] (position, cross, velocity blocks) and F = [[I, T I], [0, I]],
     /// F P Fᵀ = [[A + T(B + Bᵀ) + T² C, B + T C], [Bᵀ + T C, C]]. A third of the flops of two
     /// 6x6 products; tested equal to the generic form.
+    ///
+    /// With A and C symmetric (every P the CV filter holds is: its start is symmetrised,
+    /// its update writes each entry and its mirror from one sum), the result is symmetric
+    /// to the bit, entry (i, j) and (j, i) being the same sums in the same order; so no
+    /// symmetrisation follows (½ (P + Pᵀ) of a symmetric P is P), and Q is added on its 12
+    /// non-zero entries alone. The full Q and the symmetrisation were 4 % of a `kalman-cv`
+    /// fleet replay's instructions; the result is the same bits (`fleet-same-tracks.sh`).
     fn predict(&self, x: &mut State6, p: &mut Matrix6, dt_s: f64) {
         let v = kalman::rows::<3, _>(x, 3);
         let mut pos = x.fixed_rows_mut::<3>(0);
@@ -131,8 +138,14 @@ impl MotionModel<6> for CvModel {
         p.fixed_view_mut::<3, 3>(0, 0).copy_from(&a_new);
         p.fixed_view_mut::<3, 3>(0, 3).copy_from(&b_new);
         p.fixed_view_mut::<3, 3>(3, 0).copy_from(&b_new.transpose());
-        *p += self.q(dt_s);
-        *p = kalman::symmetrise(p);
+        let (t1, t2, t3) = (dt_s, dt_s * dt_s, dt_s * dt_s * dt_s);
+        for axis in 0..3 {
+            let qa = self.axis_q(axis);
+            p[(axis, axis)] += qa * t3 / 3.0;
+            p[(axis, axis + 3)] += qa * t2 / 2.0;
+            p[(axis + 3, axis)] += qa * t2 / 2.0;
+            p[(axis + 3, axis + 3)] += qa * t1;
+        }
     }
 }
 
@@ -541,6 +554,60 @@ mod tests {
             kalman::predict(&mut x2, &mut p2, &model.f(dt), &model.q(dt));
             assert!((x1 - x2).norm() <= 1e-12 * x2.norm(), "x at {dt}");
             assert!((p1 - p2).norm() <= 1e-12 * p2.norm(), "P at {dt}");
+            // Symmetric to the bit without a symmetrisation (its doc).
+            assert_eq!(p1, p1.transpose(), "P at {dt} is not exactly symmetric");
+        }
+    }
+
+    /// What the closed-form prediction relies on: the filter's P is symmetric to the bit
+    /// after every step (start, prediction, each kind of update), so the prediction needs no
+    /// symmetrisation.
+    #[test]
+    fn the_covariance_stays_exactly_symmetric() {
+        let mut rng = StdRng::seed_from_u64(41);
+        let mut kf = CvKalman::default();
+        let (mut t_s, mut pos, vel) = (
+            0.0,
+            Vector3::new(1e4, -3e3, 9e3),
+            Vector3::new(180.0, -60.0, 4.0),
+        );
+        for k in 0..600 {
+            t_s += rng.gen_range(0.05..1.5);
+            pos += vel * 0.5;
+            let noisy = |v: Vector3<f64>, s: f64, rng: &mut StdRng| {
+                v + Vector3::from_fn(|_, _| rng.gen_range(-s..s))
+            };
+            let position = Observed {
+                value: noisy(pos, 20.0, &mut rng),
+                // A full covariance (a report's is rotated into the track's frame).
+                cov: {
+                    let l = Matrix3::from_fn(|_, _| rng.gen_range(-20.0..20.0));
+                    l * l.transpose() + Matrix3::identity()
+                },
+            };
+            let velocity = Observed {
+                value: noisy(vel, 1.0, &mut rng),
+                cov: Matrix3::from_diagonal(&Vector3::new(0.3, 0.4, 2.0)),
+            };
+            let m = Measurement {
+                t_s,
+                position: (k % 3 != 1).then_some(position),
+                velocity: (k % 3 != 0).then_some(velocity),
+            };
+            if let Some((_, predicted)) = kf.predicted(t_s) {
+                assert_eq!(
+                    predicted,
+                    predicted.transpose(),
+                    "P predicted to update {k} is not exactly symmetric"
+                );
+            }
+            kf.update(&m).expect("a finite report in time order");
+            let p = kf.track.as_ref().expect("a track").p;
+            assert_eq!(
+                p,
+                p.transpose(),
+                "P after update {k} is not exactly symmetric"
+            );
         }
     }
 

@@ -149,6 +149,27 @@ impl MotionModel<6> for CvModel {
     }
 }
 
+impl CvModel {
+    /// The position and the east and north variances of [`MotionModel::predict`] from
+    /// `(x, p)` over `dt_s`, and nothing else: what a published prediction reads. The same
+    /// sums as the closed form's for those entries (the same bits, tested through
+    /// `published_predictions_are_the_estimates_predictions`), without predicting the
+    /// other 33 entries of P and copying the state (three horizons a snapshot: 2 % of a
+    /// `kalman-cv` fleet replay's instructions).
+    fn predicted_position(&self, x: &State6, p: &Matrix6, dt_s: f64) -> (Vector3<f64>, f64, f64) {
+        let (t2, t3) = (dt_s * dt_s, dt_s * dt_s * dt_s);
+        let pos = Vector3::from_fn(|a, _| x[a] + x[a + 3] * dt_s);
+        // A + T (B + Bᵀ) + T² C + Q on the diagonal, for the two horizontal axes.
+        let var = |a: usize| {
+            p[(a, a)]
+                + (p[(a, a + 3)] + p[(a, a + 3)]) * dt_s
+                + p[(a + 3, a + 3)] * t2
+                + self.axis_q(a) * t3 / 3.0
+        };
+        (pos, var(0), var(1))
+    }
+}
+
 #[derive(Clone, Copy, Debug, PartialEq)]
 struct Track {
     t_s: f64,
@@ -453,16 +474,21 @@ impl Tracker for CvKalman {
         horizons_s: &[f64],
         out: &mut Vec<PositionPrediction>,
     ) {
+        let Some(track) = self.track.as_ref() else {
+            return;
+        };
         for &ahead_s in horizons_s {
             let t_s = base_t_s + ahead_s;
-            let Some((x, p)) = self.predicted(t_s) else {
+            let dt_s = t_s - track.t_s;
+            if !dt_s.is_finite() || dt_s < 0.0 {
                 continue;
-            };
+            }
+            let (pos_m, var_e, var_n) = self.model.predicted_position(&track.x, &track.p, dt_s);
             out.push(PositionPrediction {
                 dt_s: ahead_s,
                 t_s,
-                pos_m: kalman::rows::<3, _>(&x, 0),
-                pos_sigma_m: super::horizontal_sigma(p[(0, 0)], p[(1, 1)]),
+                pos_m,
+                pos_sigma_m: super::horizontal_sigma(var_e, var_n),
             });
         }
     }

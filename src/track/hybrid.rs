@@ -771,6 +771,27 @@ impl Tracker for HybridTracker {
         horizons_s: &[f64],
         out: &mut Vec<PositionPrediction>,
     ) {
+        // The CV filter's predictions: only the entries read (`kalman::predicted_horizontal`,
+        // the same bits as `predicted`'s).
+        if let (Branch::Cv { x, p }, Some(track_t_s)) = (&self.branch, self.init.track_t_s()) {
+            for &ahead_s in horizons_s {
+                let t_s = base_t_s + ahead_s;
+                let dt_s = t_s - track_t_s;
+                if !(dt_s.is_finite() && dt_s >= 0.0) {
+                    continue;
+                }
+                let (f, q) = MotionModel::<6>::fq(&self.params.cv, dt_s);
+                let (x, var_e, var_n) = kalman::predicted_horizontal(&f, &q, x, p);
+                let (var_e, var_n) = self.noise.with_position_bias_var(var_e, var_n);
+                out.push(PositionPrediction {
+                    dt_s: ahead_s,
+                    t_s,
+                    pos_m: kalman::rows::<3, _>(&x, 0),
+                    pos_sigma_m: super::horizontal_sigma(var_e, var_n),
+                });
+            }
+            return;
+        }
         let steps = horizons_s
             .iter()
             .map(|&ahead_s| (ahead_s, base_t_s + ahead_s));

@@ -109,6 +109,38 @@ pub fn predict<const N: usize>(
     *p = symmetrise(&(sparse_fpf(f, p) + q));
 }
 
+/// [`predict`]'s state and the east and north variances of its P (entries (0, 0) and
+/// (1, 1)), for a 6-state model, without the other 34 entries: what a published prediction
+/// reads (a position and its horizontal σ, three horizons a snapshot: the whole prediction
+/// was 1 % of the default tracker's fleet replay). The same bits as [`predict`]: for an F
+/// on the models' support ([`fpf_support6`]) each entry is that function's sums for it
+/// written out, then the symmetrisation's ½ (m + m); any other F takes [`predict`] itself.
+pub fn predicted_horizontal(
+    f: &SMatrix<f64, 6, 6>,
+    q: &SMatrix<f64, 6, 6>,
+    x: &SVector<f64, 6>,
+    p: &SMatrix<f64, 6, 6>,
+) -> (SVector<f64, 6>, f64, f64) {
+    if OFF_SUPPORT6
+        .iter()
+        .any(|&i| f.as_slice().get(i).is_none_or(|v| *v != 0.0))
+    {
+        let (mut x, mut p) = (*x, *p);
+        predict(&mut x, &mut p, f, q);
+        return (x, p[(0, 0)], p[(1, 1)]);
+    }
+    // Row i of F has its support at columns i, 3, 4 (i = 0, 1). G = F P on that row, then
+    // (G Fᵀ)ᵢᵢ, each summed from zero in fpf_support6's order; then + Q and ½ (m + m).
+    let var = |i: usize| {
+        let g =
+            |k: usize| 0.0 + f[(i, i)] * p[(i, k)] + f[(i, 3)] * p[(3, k)] + f[(i, 4)] * p[(4, k)];
+        let fpf = 0.0 + g(i) * f[(i, i)] + g(3) * f[(i, 3)] + g(4) * f[(i, 4)];
+        let m = fpf + q[(i, i)];
+        (m + m) * 0.5
+    };
+    (f * x, var(0), var(1))
+}
+
 /// The non-zero entries of each row of `f`, column indices ascending.
 ///
 /// Motion-model transitions are sparse (per-axis 2x2 or 3x3 blocks, the CT model's 2x2
@@ -1062,6 +1094,18 @@ mod tests {
             let mut off = leading6[1];
             off[(5, 0)] = 0.25;
             prop_assert_eq!(sparse_fpf(&off, &p6), off * p6 * off.transpose());
+            // A published prediction's entries alone: `predict`'s, bit for bit, on the
+            // pattern and off it.
+            let q6 = random_spd::<6>(&mut rng, 1.0);
+            let x6 = SVector::<f64, 6>::from_fn(|_, _| rng.gen_range(-1e5..1e5));
+            for f6 in leading6.iter().chain([&off]) {
+                let (mut x, mut p) = (x6, p6);
+                predict(&mut x, &mut p, f6, &q6);
+                let (hx, var_e, var_n) = predicted_horizontal(f6, &q6, &x6, &p6);
+                prop_assert_eq!(hx, x);
+                prop_assert_eq!(var_e.to_bits(), p[(0, 0)].to_bits());
+                prop_assert_eq!(var_n.to_bits(), p[(1, 1)].to_bits());
+            }
             // The 8-state leading blocks of the models with horizontal acceleration.
             let p8 = random_spd::<8>(&mut rng, 3.0);
             for f8 in [Ca::default().leading_fq(dt).0, Chca::default().leading_fq(dt).0] {

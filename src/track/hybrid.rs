@@ -485,7 +485,9 @@ impl HybridTracker {
     /// The track predicted to each `(tag, t_s)` of `steps` by the current label's model
     /// ([`Tracker::predict`]): `each(tag, t_s, x, P)`, position and velocity, for the times
     /// at or after the track's (the others are skipped); the IMM's combined estimate is
-    /// formed once for all of them. What a whole estimate and a published prediction share.
+    /// formed once for all of them. What a whole estimate and, while the IMM runs, a
+    /// published prediction share (the CV filter's published predictions compute only the
+    /// entries they read, the same bits: [`Tracker::predict_positions`]).
     fn predicted<T>(
         &self,
         steps: impl Iterator<Item = (T, f64)>,

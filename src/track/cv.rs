@@ -147,18 +147,15 @@ impl MotionModel<6> for CvModel {
             p[(axis + 3, axis + 3)] += qa * t1;
         }
     }
-}
 
-impl CvModel {
-    /// The position and the east and north variances of [`MotionModel::predict`] from
-    /// `(x, p)` over `dt_s`, and nothing else: what a published prediction reads. The same
-    /// sums as the closed form's for those entries (the same bits, tested through
-    /// `published_predictions_are_the_estimates_predictions`), without predicting the
-    /// other 33 entries of P and copying the state (three horizons a snapshot: 2 % of a
-    /// `kalman-cv` fleet replay's instructions).
-    fn predicted_position(&self, x: &State6, p: &Matrix6, dt_s: f64) -> (Vector3<f64>, f64, f64) {
+    /// [`MotionModel::predict`]'s state and east and north variances alone: the closed
+    /// form's sums for those entries (the same bits, tested through
+    /// `published_predictions_are_the_estimates_predictions`), without predicting the other
+    /// 34 entries of P (three horizons a snapshot: 1.3 % of a `kalman-cv` fleet replay's
+    /// instructions).
+    fn predict_horizontal(&self, x: &State6, p: &Matrix6, dt_s: f64) -> (State6, f64, f64) {
         let (t2, t3) = (dt_s * dt_s, dt_s * dt_s * dt_s);
-        let pos = Vector3::from_fn(|a, _| x[a] + x[a + 3] * dt_s);
+        let x_new = State6::from_fn(|i, _| if i < 3 { x[i] + x[i + 3] * dt_s } else { x[i] });
         // A + T (B + Bᵀ) + T² C + Q on the diagonal, for the two horizontal axes.
         let var = |a: usize| {
             p[(a, a)]
@@ -166,7 +163,7 @@ impl CvModel {
                 + p[(a + 3, a + 3)] * t2
                 + self.axis_q(a) * t3 / 3.0
         };
-        (pos, var(0), var(1))
+        (x_new, var(0), var(1))
     }
 }
 
@@ -294,13 +291,10 @@ impl CvKalman {
     }
 
     /// The track's state and covariance predicted to `t_s` (at or after the track's time),
-    /// what [`Tracker::predict`] and [`Tracker::predict_positions`] read.
+    /// what [`Tracker::predict`] reads.
     fn predicted(&self, t_s: f64) -> Option<(State6, Matrix6)> {
         let track = self.track.as_ref()?;
-        let dt_s = t_s - track.t_s;
-        if !dt_s.is_finite() || dt_s < 0.0 {
-            return None;
-        }
+        let dt_s = super::time_ahead_s(track.t_s, t_s)?;
         let (mut x, mut p) = (track.x, track.p);
         self.model.predict(&mut x, &mut p, dt_s);
         Some((x, p))
@@ -479,15 +473,14 @@ impl Tracker for CvKalman {
         };
         for &ahead_s in horizons_s {
             let t_s = base_t_s + ahead_s;
-            let dt_s = t_s - track.t_s;
-            if !dt_s.is_finite() || dt_s < 0.0 {
+            let Some(dt_s) = super::time_ahead_s(track.t_s, t_s) else {
                 continue;
-            }
-            let (pos_m, var_e, var_n) = self.model.predicted_position(&track.x, &track.p, dt_s);
+            };
+            let (x, var_e, var_n) = self.model.predict_horizontal(&track.x, &track.p, dt_s);
             out.push(PositionPrediction {
                 dt_s: ahead_s,
                 t_s,
-                pos_m,
+                pos_m: kalman::rows::<3, _>(&x, 0),
                 pos_sigma_m: super::horizontal_sigma(var_e, var_n),
             });
         }

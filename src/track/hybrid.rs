@@ -497,10 +497,8 @@ impl HybridTracker {
             return;
         };
         // (tag and time, dt from the track) for the times that can be predicted.
-        let steps = steps.filter_map(|(tag, t_s)| {
-            let dt_s = t_s - track_t_s;
-            (dt_s.is_finite() && dt_s >= 0.0).then_some(((tag, t_s), dt_s))
-        });
+        let steps =
+            steps.filter_map(|(tag, t_s)| Some(((tag, t_s), super::time_ahead_s(track_t_s, t_s)?)));
         match &self.branch {
             Branch::Cv { x, p } => {
                 for ((tag, t_s), dt_s) in steps {
@@ -773,17 +771,16 @@ impl Tracker for HybridTracker {
         horizons_s: &[f64],
         out: &mut Vec<PositionPrediction>,
     ) {
-        // The CV filter's predictions: only the entries read (`kalman::predicted_horizontal`,
-        // the same bits as `predicted`'s).
+        // The CV filter's predictions: only the entries read
+        // (`MotionModel::predict_horizontal`, the same bits as `predicted`'s).
         if let (Branch::Cv { x, p }, Some(track_t_s)) = (&self.branch, self.init.track_t_s()) {
             for &ahead_s in horizons_s {
                 let t_s = base_t_s + ahead_s;
-                let dt_s = t_s - track_t_s;
-                if !(dt_s.is_finite() && dt_s >= 0.0) {
+                let Some(dt_s) = super::time_ahead_s(track_t_s, t_s) else {
                     continue;
-                }
-                let (f, q) = MotionModel::<6>::fq(&self.params.cv, dt_s);
-                let (x, var_e, var_n) = kalman::predicted_horizontal(&f, &q, x, p);
+                };
+                let (x, var_e, var_n) =
+                    MotionModel::<6>::predict_horizontal(&self.params.cv, x, p, dt_s);
                 let (var_e, var_n) = self.noise.with_position_bias_var(var_e, var_n);
                 out.push(PositionPrediction {
                     dt_s: ahead_s,

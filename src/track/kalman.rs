@@ -32,6 +32,20 @@ pub trait MotionModel<const N: usize> {
         let (f, q) = self.fq(dt_s);
         predict(x, p, &f, &q);
     }
+
+    /// [`MotionModel::predict`]'s state and the east and north variances of its P (entries
+    /// (0, 0) and (1, 1)) from `(x, p)`, the same bits, without the rest of P: what a
+    /// published prediction reads (a position and its horizontal σ, three horizons a
+    /// snapshot). A model that overrides `predict` overrides this with the same sums.
+    fn predict_horizontal(
+        &self,
+        x: &SVector<f64, N>,
+        p: &SMatrix<f64, N, N>,
+        dt_s: f64,
+    ) -> (SVector<f64, N>, f64, f64) {
+        let (f, q) = self.fq(dt_s);
+        predicted_horizontal(&f, &q, x, p)
+    }
 }
 
 /// What an update learnt about a measurement: the quantities gating, divergence detection
@@ -110,35 +124,46 @@ pub fn predict<const N: usize>(
 }
 
 /// [`predict`]'s state and the east and north variances of its P (entries (0, 0) and
-/// (1, 1)), for a 6-state model, without the other 34 entries: what a published prediction
-/// reads (a position and its horizontal σ, three horizons a snapshot: the whole prediction
-/// was 1 % of the default tracker's fleet replay). The same bits as [`predict`]: for an F
-/// on the models' support ([`fpf_support6`]) each entry is that function's sums for it
-/// written out, then the symmetrisation's ½ (m + m); any other F takes [`predict`] itself.
-pub fn predicted_horizontal(
-    f: &SMatrix<f64, 6, 6>,
-    q: &SMatrix<f64, 6, 6>,
-    x: &SVector<f64, 6>,
-    p: &SMatrix<f64, 6, 6>,
-) -> (SVector<f64, 6>, f64, f64) {
-    if OFF_SUPPORT6
-        .iter()
-        .any(|&i| f.as_slice().get(i).is_none_or(|v| *v != 0.0))
-    {
-        let (mut x, mut p) = (*x, *p);
-        predict(&mut x, &mut p, f, q);
-        return (x, p[(0, 0)], p[(1, 1)]);
+/// (1, 1)), without the other entries ([`MotionModel::predict_horizontal`]; the whole
+/// prediction was 1 % of the default tracker's fleet replay). The same bits as [`predict`]:
+/// for a 6x6 F on the models' support ([`fpf_support6`]) each entry is that function's sums
+/// for it written out, then the symmetrisation's ½ (m + m); any other F, or size, takes
+/// [`predict`] itself.
+pub fn predicted_horizontal<const N: usize>(
+    f: &SMatrix<f64, N, N>,
+    q: &SMatrix<f64, N, N>,
+    x: &SVector<f64, N>,
+    p: &SMatrix<f64, N, N>,
+) -> (SVector<f64, N>, f64, f64) {
+    if let (Ok(f6), Ok(q6), Ok(p6)) = (
+        <&[f64; 36]>::try_from(f.as_slice()),
+        <&[f64; 36]>::try_from(q.as_slice()),
+        <&[f64; 36]>::try_from(p.as_slice()),
+    ) {
+        if !OFF_SUPPORT6.iter().any(|&i| f6[i] != 0.0) {
+            // Column-major: entry (r, c) at 6c + r. Row i of F has its support at columns
+            // i, 3, 4 (i = 0, 1). G = F P on that row, then (G Fᵀ)ᵢᵢ, each summed from zero
+            // in fpf_support6's order; then + Q and ½ (m + m).
+            let (fe, pe) = (
+                |r: usize, c: usize| f6[6 * c + r],
+                |r: usize, c: usize| p6[6 * c + r],
+            );
+            let var = |i: usize, q_ii: f64| {
+                let g = |k: usize| {
+                    0.0 + fe(i, i) * pe(i, k) + fe(i, 3) * pe(3, k) + fe(i, 4) * pe(4, k)
+                };
+                let fpf = 0.0 + g(i) * fe(i, i) + g(3) * fe(i, 3) + g(4) * fe(i, 4);
+                let m = fpf + q_ii;
+                (m + m) * 0.5
+            };
+            // Q(0, 0) and Q(1, 1) at 0 and 7.
+            return (f * x, var(0, q6[0]), var(1, q6[7]));
+        }
     }
-    // Row i of F has its support at columns i, 3, 4 (i = 0, 1). G = F P on that row, then
-    // (G Fᵀ)ᵢᵢ, each summed from zero in fpf_support6's order; then + Q and ½ (m + m).
-    let var = |i: usize| {
-        let g =
-            |k: usize| 0.0 + f[(i, i)] * p[(i, k)] + f[(i, 3)] * p[(3, k)] + f[(i, 4)] * p[(4, k)];
-        let fpf = 0.0 + g(i) * f[(i, i)] + g(3) * f[(i, 3)] + g(4) * f[(i, 4)];
-        let m = fpf + q[(i, i)];
-        (m + m) * 0.5
-    };
-    (f * x, var(0), var(1))
+    let (mut x, mut p) = (*x, *p);
+    predict(&mut x, &mut p, f, q);
+    let entry = |i: usize| p.get((i, i)).copied().unwrap_or(f64::NAN);
+    (x, entry(0), entry(1))
 }
 
 /// The non-zero entries of each row of `f`, column indices ascending.

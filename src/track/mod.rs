@@ -161,6 +161,13 @@ impl PositionPrediction {
     }
 }
 
+/// Seconds from a track's time `track_t_s` to `t_s` when `t_s` is at or after it (a finite,
+/// non-negative step): the trackers predict forward only, and refuse other times.
+pub fn time_ahead_s(track_t_s: f64, t_s: f64) -> Option<f64> {
+    let dt_s = t_s - track_t_s;
+    (dt_s.is_finite() && dt_s >= 0.0).then_some(dt_s)
+}
+
 /// sqrt(σₑ² + σₙ²): the 1-sigma horizontal uncertainty of east and north variances (a
 /// negative sum, which rounding could leave, reads as 0).
 pub fn horizontal_sigma(var_e: f64, var_n: f64) -> f64 {

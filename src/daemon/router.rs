@@ -276,66 +276,49 @@ async fn deliver(
     handle.last_seen_s = handle.last_seen_s.max(last);
     handle.last_arrival = arrived;
     let n = msgs.len();
-    let sent = match overload {
-        // Room in the frame budget and in the channel now, as nearly always: sent without
-        // building the futures of the waiting path (a cancellation future registered and
-        // removed under the token's lock on every batch: 0.5 % of a `kalman-cv` fleet
-        // replay's instructions).
-        Overload::Backpressure if ctx.shutdown.is_cancelled() => return Delivery::Shutdown,
-        Overload::Backpressure => match stats.try_reserve_frames(n) {
-            Some(permits) => match handle.tx.try_send(Box::new(AircraftBatch {
-                msgs,
-                arrived,
-                permits,
-                done,
-            })) {
-                // The channel is full: wait for room, or for shutdown.
-                Err(mpsc::error::TrySendError::Full(batch)) => {
-                    let permits = batch.permits;
-                    tokio::select! {
-                        biased;
-                        _ = ctx.shutdown.cancelled() => {
-                            stats.release_frames(permits);
-                            return Delivery::Shutdown;
-                        }
-                        r = handle.tx.send(batch) => {
-                            r.map_err(|e| mpsc::error::TrySendError::Closed(e.0))
-                        }
-                    }
-                }
-                other => other,
-            },
-            // No room in the budget: wait for it, then for the channel, or for shutdown.
-            None => tokio::select! {
+    // Under backpressure, room in the frame budget and in the channel now (as nearly always)
+    // sends the batch without building the futures of the waiting path (a cancellation
+    // future registered and removed under the token's lock on every batch: 0.5 % of a
+    // `kalman-cv` fleet replay's instructions); shutdown is still seen first.
+    if overload == Overload::Backpressure && ctx.shutdown.is_cancelled() {
+        return Delivery::Shutdown;
+    }
+    let permits = match (stats.try_reserve_frames(n), overload) {
+        (Some(permits), _) => permits,
+        // No room in the budget: wait for it, or for shutdown.
+        (None, Overload::Backpressure) => tokio::select! {
+            biased;
+            _ = ctx.shutdown.cancelled() => return Delivery::Shutdown,
+            permits = stats.reserve_frames(n) => permits,
+        },
+        // Shed without building the batch.
+        (None, Overload::Drop) => {
+            drops.dropped(n as u64, stats);
+            return Delivery::Sent;
+        }
+    };
+    let batch = Box::new(AircraftBatch {
+        msgs,
+        arrived,
+        permits,
+        done,
+    });
+    let sent = match (handle.tx.try_send(batch), overload) {
+        // The channel is full: wait for room, or for shutdown (the batch's frames given
+        // back to the budget). The drop policy sheds it below.
+        (Err(mpsc::error::TrySendError::Full(batch)), Overload::Backpressure) => {
+            tokio::select! {
                 biased;
-                _ = ctx.shutdown.cancelled() => return Delivery::Shutdown,
-                r = async {
-                    let permits = stats.reserve_frames(n).await;
-                    handle
-                        .tx
-                        .send(Box::new(AircraftBatch {
-                            msgs,
-                            arrived,
-                            permits,
-                            done,
-                        }))
-                        .await
-                } => r.map_err(|e| mpsc::error::TrySendError::Closed(e.0)),
-            },
-        },
-        Overload::Drop => match stats.try_reserve_frames(n) {
-            Some(permits) => handle.tx.try_send(Box::new(AircraftBatch {
-                msgs,
-                arrived,
-                permits,
-                done,
-            })),
-            // No room in the frame budget: shed without building the batch.
-            None => {
-                drops.dropped(n as u64, stats);
-                return Delivery::Sent;
+                _ = ctx.shutdown.cancelled() => {
+                    stats.release_frames(permits);
+                    return Delivery::Shutdown;
+                }
+                r = handle.tx.send(batch) => {
+                    r.map_err(|e| mpsc::error::TrySendError::Closed(e.0))
+                }
             }
-        },
+        }
+        (other, _) => other,
     };
     match sent {
         Ok(()) => Delivery::Sent,

@@ -89,6 +89,50 @@ impl CvModel {
             self.q_v_m2ps3
         }
     }
+
+    /// The prediction of (`x`, `p`) over `dt_s`, returned: what
+    /// [`MotionModel::predict`] does in place, for a caller whose prior must stay as it is
+    /// (the filter's update keeps its track until the posterior is accepted) without
+    /// copying it first.
+    ///
+    /// The same step as the generic `x ← F x, P ← F P Fᵀ + Q`, in closed form: with
+    /// P = [[A, B], [Bᵀ, C]] (position, cross, velocity blocks) and F = [[I, T I], [0, I]],
+    /// F P Fᵀ = [[A + T(B + Bᵀ) + T² C, B + T C], [Bᵀ + T C, C]]. A third of the flops of two
+    /// 6x6 products; tested equal to the generic form.
+    ///
+    /// With A and C symmetric (every P the CV filter holds is: its start is symmetrised,
+    /// its update writes each entry and its mirror from one sum), the result is symmetric
+    /// to the bit, entry (i, j) and (j, i) being the same sums in the same order; so no
+    /// symmetrisation follows (½ (P + Pᵀ) of a symmetric P is P), and Q is added on its 12
+    /// non-zero entries alone. The full Q and the symmetrisation were 4 % of a `kalman-cv`
+    /// fleet replay's instructions; the result is the same bits (`fleet-same-tracks.sh`).
+    pub fn predicted(&self, x: &State6, p: &Matrix6, dt_s: f64) -> (State6, Matrix6) {
+        let v = kalman::rows::<3, _>(x, 3);
+        let mut x_new = *x;
+        let mut pos = x_new.fixed_rows_mut::<3>(0);
+        pos += v * dt_s;
+        let a = kalman::block::<3, 3, _, _>(p, 0, 0);
+        let b = kalman::block::<3, 3, _, _>(p, 0, 3);
+        let c = kalman::block::<3, 3, _, _>(p, 3, 3);
+        let b_new = b + c * dt_s;
+        let a_new = a + (b + b.transpose()) * dt_s + c * (dt_s * dt_s);
+        let mut p_new = Matrix6::zeros();
+        p_new.fixed_view_mut::<3, 3>(0, 0).copy_from(&a_new);
+        p_new.fixed_view_mut::<3, 3>(0, 3).copy_from(&b_new);
+        p_new
+            .fixed_view_mut::<3, 3>(3, 0)
+            .copy_from(&b_new.transpose());
+        p_new.fixed_view_mut::<3, 3>(3, 3).copy_from(&c);
+        let (t1, t2, t3) = (dt_s, dt_s * dt_s, dt_s * dt_s * dt_s);
+        for axis in 0..3 {
+            let qa = self.axis_q(axis);
+            p_new[(axis, axis)] += qa * t3 / 3.0;
+            p_new[(axis, axis + 3)] += qa * t2 / 2.0;
+            p_new[(axis + 3, axis)] += qa * t2 / 2.0;
+            p_new[(axis + 3, axis + 3)] += qa * t1;
+        }
+        (x_new, p_new)
+    }
 }
 
 impl MotionModel<6> for CvModel {
@@ -115,37 +159,9 @@ impl MotionModel<6> for CvModel {
         q
     }
 
-    /// The same step as the generic `x ← F x, P ← F P Fᵀ + Q`, in closed form: with
-    /// P = [[A, B], [Bᵀ, C]] (position, cross, velocity blocks) and F = [[I, T I], [0, I]],
-    /// F P Fᵀ = [[A + T(B + Bᵀ) + T² C, B + T C], [Bᵀ + T C, C]]. A third of the flops of two
-    /// 6x6 products; tested equal to the generic form.
-    ///
-    /// With A and C symmetric (every P the CV filter holds is: its start is symmetrised,
-    /// its update writes each entry and its mirror from one sum), the result is symmetric
-    /// to the bit, entry (i, j) and (j, i) being the same sums in the same order; so no
-    /// symmetrisation follows (½ (P + Pᵀ) of a symmetric P is P), and Q is added on its 12
-    /// non-zero entries alone. The full Q and the symmetrisation were 4 % of a `kalman-cv`
-    /// fleet replay's instructions; the result is the same bits (`fleet-same-tracks.sh`).
+    /// [`CvModel::predicted`] in place.
     fn predict(&self, x: &mut State6, p: &mut Matrix6, dt_s: f64) {
-        let v = kalman::rows::<3, _>(x, 3);
-        let mut pos = x.fixed_rows_mut::<3>(0);
-        pos += v * dt_s;
-        let a = kalman::block::<3, 3, _, _>(p, 0, 0);
-        let b = kalman::block::<3, 3, _, _>(p, 0, 3);
-        let c = kalman::block::<3, 3, _, _>(p, 3, 3);
-        let b_new = b + c * dt_s;
-        let a_new = a + (b + b.transpose()) * dt_s + c * (dt_s * dt_s);
-        p.fixed_view_mut::<3, 3>(0, 0).copy_from(&a_new);
-        p.fixed_view_mut::<3, 3>(0, 3).copy_from(&b_new);
-        p.fixed_view_mut::<3, 3>(3, 0).copy_from(&b_new.transpose());
-        let (t1, t2, t3) = (dt_s, dt_s * dt_s, dt_s * dt_s * dt_s);
-        for axis in 0..3 {
-            let qa = self.axis_q(axis);
-            p[(axis, axis)] += qa * t3 / 3.0;
-            p[(axis, axis + 3)] += qa * t2 / 2.0;
-            p[(axis + 3, axis)] += qa * t2 / 2.0;
-            p[(axis + 3, axis + 3)] += qa * t1;
-        }
+        (*x, *p) = self.predicted(x, p, dt_s);
     }
 
     /// [`MotionModel::predict`]'s state and east and north variances alone: the closed
@@ -182,7 +198,9 @@ struct Track {
 /// - A report carrying position and velocity is one joint 6-D update (H = I); position or
 ///   velocity alone a 3-D one. All fixed-size: no allocation.
 /// - A report older than the track is refused (`OutOfOrder`) and changes nothing; a report
-///   more than `max_gap_s` after the track re-initialises it.
+///   more than `max_gap_s` after the track re-initialises it. A report whose update is
+///   refused (`NotPositiveDefinite`) counts as missed: the track moves to its prediction at
+///   the report's time.
 /// - On each position update, paper 000's criterion εᵀε > r·Tr(S) over the position part of
 ///   the innovation is one divergence event; [`Estimate::diverging`] is set while the last
 ///   `divergence_confirm` position updates were all events.
@@ -295,9 +313,7 @@ impl CvKalman {
     fn predicted(&self, t_s: f64) -> Option<(State6, Matrix6)> {
         let track = self.track.as_ref()?;
         let dt_s = super::time_ahead_s(track.t_s, t_s)?;
-        let (mut x, mut p) = (track.x, track.p);
-        self.model.predict(&mut x, &mut p, dt_s);
-        Some((x, p))
+        Some(self.model.predicted(&track.x, &track.p, dt_s))
     }
 
     fn estimate_of(&self, t_s: f64, x: &State6, p: &Matrix6) -> Estimate {
@@ -320,6 +336,22 @@ impl CvKalman {
             nis: self.nis.stat(),
         }
     }
+}
+
+/// `inn`, the result of an update that wrote its posterior into `track`; when it was refused
+/// (what it wrote may be part of a posterior), the track is set to the prediction (`x`,
+/// `p`) at the report's time `t_s` first: a refused report counts as missed.
+fn refused_is_missed<const M: usize>(
+    track: &mut Track,
+    t_s: f64,
+    x: &State6,
+    p: &Matrix6,
+    inn: Result<Innovation<M>, TrackError>,
+) -> Result<Innovation<M>, TrackError> {
+    if inn.is_err() {
+        *track = Track { t_s, x: *x, p: *p };
+    }
+    inn
 }
 
 fn observed_is_finite(o: &Observed) -> bool {
@@ -357,9 +389,13 @@ impl Tracker for CvKalman {
                 self.reinitialisations = self.reinitialisations.saturating_add(1);
             }
         }
-        // The state is copied once, into the working x and P (the track keeps the old one
-        // until the update succeeds), and written back in place.
-        let Some(track) = self.track.as_ref() else {
+        // The prior is predicted out of the track, and the update writes its posterior
+        // straight into the track (copying the state in and out, three copies of P an
+        // update, was 3 % of a `kalman-cv` fleet replay's instructions). A refused update
+        // may have written part of a posterior there, so the track is then set to the
+        // prediction: the report counts as missed (predicting from the report's time on is
+        // the same model step as predicting from the track's time).
+        let Some(track) = self.track.as_mut() else {
             match (&m.position, &m.velocity) {
                 (Some(pos), vel) => self.initiate(m.t_s, pos, vel.as_ref()),
                 (None, Some(vel)) => {
@@ -371,9 +407,7 @@ impl Tracker for CvKalman {
             }
             return Ok(());
         };
-        let (track_t_s, mut x, mut p) = (track.t_s, track.x, track.p);
-
-        self.model.predict(&mut x, &mut p, m.t_s - track_t_s);
+        let (x, p) = self.model.predicted(&track.x, &track.p, m.t_s - track.t_s);
         // `Some((ε_pos, S_pos))` when the report had a position, for the divergence test.
         let position_innovation = match (&m.position, &m.velocity) {
             (Some(pos), Some(vel)) => {
@@ -383,13 +417,16 @@ impl Tracker for CvKalman {
                 let mut r = Matrix6::zeros();
                 r.fixed_view_mut::<3, 3>(0, 0).copy_from(&pos.cov);
                 r.fixed_view_mut::<3, 3>(3, 3).copy_from(&vel.cov);
-                let inn: Innovation<6> = kalman::update_selected_outlined(
-                    &mut x,
-                    &mut p,
+                let inn = kalman::update_selected_to_outlined::<6, 6>(
+                    &x,
+                    &p,
                     &z,
                     &kalman::blocks6(0, 3),
                     &r,
-                )?;
+                    &mut track.x,
+                    &mut track.p,
+                );
+                let inn = refused_is_missed(track, m.t_s, &x, &p, inn)?;
                 self.nis
                     .push(inn.nis, super::nis::measured_dof(Some(pos), Some(vel)));
                 Some((
@@ -398,31 +435,38 @@ impl Tracker for CvKalman {
                 ))
             }
             (Some(pos), None) => {
-                let inn = kalman::update_selected_outlined(
-                    &mut x,
-                    &mut p,
+                let inn = kalman::update_selected_to_outlined(
+                    &x,
+                    &p,
                     &pos.value,
                     &kalman::block3(0),
                     &pos.cov,
-                )?;
+                    &mut track.x,
+                    &mut track.p,
+                );
+                let inn = refused_is_missed(track, m.t_s, &x, &p, inn)?;
                 self.nis
                     .push(inn.nis, super::nis::measured_dof(Some(pos), None));
                 Some((inn.residual, inn.s))
             }
             (None, Some(vel)) => {
-                let inn = kalman::update_selected_outlined(
-                    &mut x,
-                    &mut p,
+                let inn = kalman::update_selected_to_outlined(
+                    &x,
+                    &p,
                     &vel.value,
                     &kalman::block3(3),
                     &vel.cov,
-                )?;
+                    &mut track.x,
+                    &mut track.p,
+                );
+                let inn = refused_is_missed(track, m.t_s, &x, &p, inn)?;
                 self.nis
                     .push(inn.nis, super::nis::measured_dof(None, Some(vel)));
                 None
             }
             (None, None) => return Ok(()),
         };
+        track.t_s = m.t_s;
         if let Some((residual, s_pos)) = position_innovation {
             if self.position_diverges(&residual, &s_pos) {
                 self.divergence_events = self.divergence_events.saturating_add(1);
@@ -431,11 +475,6 @@ impl Tracker for CvKalman {
                 self.divergence_run = 0;
             }
             self.diverging = self.divergence_run >= self.params.divergence_confirm.max(1);
-        }
-        if let Some(track) = &mut self.track {
-            track.t_s = m.t_s;
-            track.x = x;
-            track.p = p;
         }
         Ok(())
     }
@@ -880,6 +919,64 @@ mod tests {
         assert_eq!(est.vel_mps, Vector3::zeros());
         assert!((est.vel_cov_m2ps2[(0, 0)] - 300f64.powi(2)).abs() < 1e-9);
         assert!((est.vel_cov_m2ps2[(2, 2)] - 30f64.powi(2)).abs() < 1e-9);
+    }
+
+    /// The update writes its posterior into the track: a refused one must leave the track at
+    /// its prediction to the report's time (not a partly written posterior), the refused
+    /// report counted as missed, and every form of report (position, velocity, both) must.
+    #[test]
+    fn a_refused_update_leaves_the_track_predicted() {
+        let start = |kf: &mut CvKalman| {
+            kf.update(&pos_report(0.0, Vector3::new(0.0, 0.0, 1000.0), 10.0))
+                .unwrap();
+            kf.update(&Measurement {
+                t_s: 1.0,
+                position: None,
+                velocity: Some(observed(
+                    Vector3::new(80.0, 5.0, 0.0),
+                    &Vector3::repeat(1.0),
+                )),
+            })
+            .unwrap();
+        };
+        // A covariance of −0.9 times the prior's leaves S = 0.1 P positive definite, and
+        // makes the posterior P − P S⁻¹ P = −9 P, which the check refuses.
+        let refused = |kf: &CvKalman, t_s: f64, pos: bool, vel: bool| {
+            let (x, p) = kf.predicted(t_s).unwrap();
+            let negative = |offset: usize| Observed {
+                value: kalman::rows::<3, _>(&x, offset) + Vector3::repeat(3.0),
+                cov: kalman::block::<3, 3, _, _>(&p, offset, offset) * -0.9,
+            };
+            Measurement {
+                t_s,
+                position: pos.then(|| negative(0)),
+                velocity: vel.then(|| negative(3)),
+            }
+        };
+        for (pos, vel) in [(true, false), (false, true), (true, true)] {
+            let mut kf = CvKalman::default();
+            start(&mut kf);
+            let mut missed = kf.clone();
+            let (x, p) = kf.predicted(2.5).unwrap();
+            let err = kf.update(&refused(&kf, 2.5, pos, vel));
+            assert_eq!(err, Err(TrackError::NotPositiveDefinite), "{pos} {vel}");
+            let est = kf.estimate().unwrap();
+            assert_eq!(est.t_s, 2.5);
+            assert_eq!(est.pos_m, kalman::rows::<3, _>(&x, 0));
+            assert_eq!(est.vel_mps, kalman::rows::<3, _>(&x, 3));
+            assert_eq!(est.pos_cov_m2, kalman::block::<3, 3, _, _>(&p, 0, 0));
+            assert_eq!(est.vel_cov_m2ps2, kalman::block::<3, 3, _, _>(&p, 3, 3));
+            assert!(kalman::is_positive_definite(&p));
+            // The next report updates as if the refused one had never come: the same model
+            // step, split at the refused report's time (equal to rounding).
+            let next = pos_report(3.0, Vector3::new(240.0, 20.0, 1001.0), 10.0);
+            kf.update(&next).unwrap();
+            missed.update(&next).unwrap();
+            let (a, b) = (kf.estimate().unwrap(), missed.estimate().unwrap());
+            assert!((a.pos_m - b.pos_m).norm() < 1e-9, "{pos} {vel}");
+            assert!((a.vel_mps - b.vel_mps).norm() < 1e-9);
+            assert!((a.pos_cov_m2 - b.pos_cov_m2).norm() < 1e-9 * b.pos_cov_m2.norm());
+        }
     }
 
     #[test]

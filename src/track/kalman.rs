@@ -776,20 +776,22 @@ fn selected_posterior<const N: usize, const M: usize>(
     })
 }
 
-/// [`update_selected`] out of line, one copy per (N, M), for a caller with several update
+/// [`update_selected_to`] out of line, one copy per (N, M), for a caller with several update
 /// sites, and without [`update`]'s search for the selection in H (120 instructions a call).
 /// The CV filter (`kalman-cv`) updates with a position, a velocity or both: with
-/// `update_selected` inlined at its three sites the fleet replay ran 2 % fewer instructions
+/// the update inlined at its three sites the fleet replay ran 2 % fewer instructions
 /// but took 6 % more CPU on one core (2.20 against 2.07 s, five runs each).
 #[inline(never)]
-pub fn update_selected_outlined<const N: usize, const M: usize>(
-    x: &mut SVector<f64, N>,
-    p: &mut SMatrix<f64, N, N>,
+pub fn update_selected_to_outlined<const N: usize, const M: usize>(
+    x: &SVector<f64, N>,
+    p: &SMatrix<f64, N, N>,
     z: &SVector<f64, M>,
     sel: &[usize; M],
     r: &SMatrix<f64, M, M>,
+    x_out: &mut SVector<f64, N>,
+    p_out: &mut SMatrix<f64, N, N>,
 ) -> Result<Innovation<M>, TrackError> {
-    update_selected(x, p, z, sel, r)
+    update_selected_to(x, p, z, sel, r, x_out, p_out)
 }
 
 /// The N×C product whose column c is Σₜ a[:, t]·coef(t, c): a times the T×C matrix `coef`,

@@ -276,7 +276,8 @@ impl Aircraft {
             }
             Message::AllCall { .. } | Message::Other { .. } => None,
         };
-        let Some(m) = measurement else {
+        // Borrowed, not moved out of the `Option` (a copy of the whole report).
+        let Some(m) = &measurement else {
             return false;
         };
         // Rare (a report without a position after a long silence): keep the estimate this

@@ -407,7 +407,9 @@ impl Tracker for CvKalman {
             }
             return Ok(());
         };
-        let (x, p) = self.model.predicted(&track.x, &track.p, m.t_s - track.t_s);
+        // Read in place: taking the pair apart (`let (x, p) = ...`) moved P again.
+        let prior = self.model.predicted(&track.x, &track.p, m.t_s - track.t_s);
+        let (x, p) = (&prior.0, &prior.1);
         // `Some((ε_pos, S_pos))` when the report had a position, for the divergence test.
         let position_innovation = match (&m.position, &m.velocity) {
             (Some(pos), Some(vel)) => {
@@ -418,15 +420,15 @@ impl Tracker for CvKalman {
                 r.fixed_view_mut::<3, 3>(0, 0).copy_from(&pos.cov);
                 r.fixed_view_mut::<3, 3>(3, 3).copy_from(&vel.cov);
                 let inn = kalman::update_selected_to_outlined::<6, 6>(
-                    &x,
-                    &p,
+                    x,
+                    p,
                     &z,
                     &kalman::blocks6(0, 3),
                     &r,
                     &mut track.x,
                     &mut track.p,
                 );
-                let inn = refused_is_missed(track, m.t_s, &x, &p, inn)?;
+                let inn = refused_is_missed(track, m.t_s, x, p, inn)?;
                 self.nis
                     .push(inn.nis, super::nis::measured_dof(Some(pos), Some(vel)));
                 Some((
@@ -436,30 +438,30 @@ impl Tracker for CvKalman {
             }
             (Some(pos), None) => {
                 let inn = kalman::update_selected_to_outlined(
-                    &x,
-                    &p,
+                    x,
+                    p,
                     &pos.value,
                     &kalman::block3(0),
                     &pos.cov,
                     &mut track.x,
                     &mut track.p,
                 );
-                let inn = refused_is_missed(track, m.t_s, &x, &p, inn)?;
+                let inn = refused_is_missed(track, m.t_s, x, p, inn)?;
                 self.nis
                     .push(inn.nis, super::nis::measured_dof(Some(pos), None));
                 Some((inn.residual, inn.s))
             }
             (None, Some(vel)) => {
                 let inn = kalman::update_selected_to_outlined(
-                    &x,
-                    &p,
+                    x,
+                    p,
                     &vel.value,
                     &kalman::block3(3),
                     &vel.cov,
                     &mut track.x,
                     &mut track.p,
                 );
-                let inn = refused_is_missed(track, m.t_s, &x, &p, inn)?;
+                let inn = refused_is_missed(track, m.t_s, x, p, inn)?;
                 self.nis
                     .push(inn.nis, super::nis::measured_dof(None, Some(vel)));
                 None

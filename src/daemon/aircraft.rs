@@ -289,7 +289,7 @@ impl Aircraft {
         };
         self.tracker
             .set_accuracy_declared(self.facts.nac_p.is_some());
-        match self.tracker.update(&m) {
+        match self.tracker.update(m) {
             // A report without a position long after the track's last one ends the track
             // (every tracker's `max_gap_s` rule) rather than updating it: no estimate left.
             Ok(()) if m.position.is_none() && !self.tracker.has_track() => {

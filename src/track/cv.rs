@@ -338,19 +338,29 @@ impl CvKalman {
     }
 }
 
-/// `inn`, the result of an update that wrote its posterior into `track`; when it was refused
-/// (what it wrote may be part of a posterior), the track is set to the prediction (`x`,
-/// `p`) at the report's time `t_s` first: a refused report counts as missed.
-fn refused_is_missed<const M: usize>(
+/// Updates `track` to the report's time `t_s` from its prediction `prior` there, with
+/// z = x[sel] + v, v ~ N(0, r): the posterior is written straight into the track. A refused
+/// update may have written part of a posterior, so the track is then set to the prediction:
+/// the refused report counts as missed.
+///
+/// The prediction is passed whole and read in place (taking the returned pair apart,
+/// `let (x, p) = ...`, moved P once more).
+#[inline(always)]
+fn update_track<const M: usize>(
     track: &mut Track,
     t_s: f64,
-    x: &State6,
-    p: &Matrix6,
-    inn: Result<Innovation<M>, TrackError>,
+    prior: &(State6, Matrix6),
+    z: &SVector<f64, M>,
+    sel: &[usize; M],
+    r: &SMatrix<f64, M, M>,
 ) -> Result<Innovation<M>, TrackError> {
+    let (x, p) = prior;
+    let inn = kalman::update_selected_to_outlined(x, p, z, sel, r, &mut track.x, &mut track.p);
     if inn.is_err() {
-        *track = Track { t_s, x: *x, p: *p };
+        track.x = *x;
+        track.p = *p;
     }
+    track.t_s = t_s;
     inn
 }
 
@@ -389,12 +399,11 @@ impl Tracker for CvKalman {
                 self.reinitialisations = self.reinitialisations.saturating_add(1);
             }
         }
-        // The prior is predicted out of the track, and the update writes its posterior
-        // straight into the track (copying the state in and out, three copies of P an
-        // update, was 3 % of a `kalman-cv` fleet replay's instructions). A refused update
-        // may have written part of a posterior there, so the track is then set to the
-        // prediction: the report counts as missed (predicting from the report's time on is
-        // the same model step as predicting from the track's time).
+        // The prior is predicted out of the track, and [`update_track`] writes the posterior
+        // straight into it: copying the state into a working copy and back, three copies of
+        // P an update, was 3 % of a `kalman-cv` fleet replay's instructions. (A refused
+        // report counts as missed: predicting on from its time is the same model step as
+        // predicting from the track's older time.)
         let Some(track) = self.track.as_mut() else {
             match (&m.position, &m.velocity) {
                 (Some(pos), vel) => self.initiate(m.t_s, pos, vel.as_ref()),
@@ -407,9 +416,7 @@ impl Tracker for CvKalman {
             }
             return Ok(());
         };
-        // Read in place: taking the pair apart (`let (x, p) = ...`) moved P again.
         let prior = self.model.predicted(&track.x, &track.p, m.t_s - track.t_s);
-        let (x, p) = (&prior.0, &prior.1);
         // `Some((ε_pos, S_pos))` when the report had a position, for the divergence test.
         let position_innovation = match (&m.position, &m.velocity) {
             (Some(pos), Some(vel)) => {
@@ -419,16 +426,7 @@ impl Tracker for CvKalman {
                 let mut r = Matrix6::zeros();
                 r.fixed_view_mut::<3, 3>(0, 0).copy_from(&pos.cov);
                 r.fixed_view_mut::<3, 3>(3, 3).copy_from(&vel.cov);
-                let inn = kalman::update_selected_to_outlined::<6, 6>(
-                    x,
-                    p,
-                    &z,
-                    &kalman::blocks6(0, 3),
-                    &r,
-                    &mut track.x,
-                    &mut track.p,
-                );
-                let inn = refused_is_missed(track, m.t_s, x, p, inn)?;
+                let inn = update_track(track, m.t_s, &prior, &z, &kalman::blocks6(0, 3), &r)?;
                 self.nis
                     .push(inn.nis, super::nis::measured_dof(Some(pos), Some(vel)));
                 Some((
@@ -437,38 +435,33 @@ impl Tracker for CvKalman {
                 ))
             }
             (Some(pos), None) => {
-                let inn = kalman::update_selected_to_outlined(
-                    x,
-                    p,
+                let inn = update_track(
+                    track,
+                    m.t_s,
+                    &prior,
                     &pos.value,
                     &kalman::block3(0),
                     &pos.cov,
-                    &mut track.x,
-                    &mut track.p,
-                );
-                let inn = refused_is_missed(track, m.t_s, x, p, inn)?;
+                )?;
                 self.nis
                     .push(inn.nis, super::nis::measured_dof(Some(pos), None));
                 Some((inn.residual, inn.s))
             }
             (None, Some(vel)) => {
-                let inn = kalman::update_selected_to_outlined(
-                    x,
-                    p,
+                let inn = update_track(
+                    track,
+                    m.t_s,
+                    &prior,
                     &vel.value,
                     &kalman::block3(3),
                     &vel.cov,
-                    &mut track.x,
-                    &mut track.p,
-                );
-                let inn = refused_is_missed(track, m.t_s, x, p, inn)?;
+                )?;
                 self.nis
                     .push(inn.nis, super::nis::measured_dof(None, Some(vel)));
                 None
             }
             (None, None) => return Ok(()),
         };
-        track.t_s = m.t_s;
         if let Some((residual, s_pos)) = position_innovation {
             if self.position_diverges(&residual, &s_pos) {
                 self.divergence_events = self.divergence_events.saturating_add(1);

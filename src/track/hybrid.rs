@@ -709,8 +709,9 @@ impl Tracker for HybridTracker {
         let track_t_s = self.init.track_t_s();
         match self.init.offer(m)? {
             Start::Waiting => Ok(()),
-            Start::New(x, p) => {
-                self.start(m.t_s, &x, &p, m.velocity.as_ref());
+            Start::New(start) => {
+                let (x, p) = &*start;
+                self.start(m.t_s, x, p, m.velocity.as_ref());
                 Ok(())
             }
             Start::Running => {

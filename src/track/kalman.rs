@@ -89,8 +89,7 @@ impl<const M: usize> Innovation<M> {
 /// (A + Aᵀ)/2: removes the asymmetry rounding leaves in a covariance.
 ///
 /// Entry by entry, the same sums as `(a + a.transpose()) * 0.5`, without its two temporary
-/// matrices (copied and zeroed through libc's memcpy and memset: 2 % of the default
-/// tracker's fleet replay).
+/// matrices (0.25 % of the default tracker's fleet replay instructions).
 pub fn symmetrise<const N: usize>(a: &SMatrix<f64, N, N>) -> SMatrix<f64, N, N> {
     SMatrix::from_fn(|i, j| (a[(i, j)] + a[(j, i)]) * 0.5)
 }

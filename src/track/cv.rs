@@ -505,19 +505,16 @@ impl Tracker for CvKalman {
         let Some(track) = self.track.as_ref() else {
             return;
         };
-        for &ahead_s in horizons_s {
-            let t_s = base_t_s + ahead_s;
-            let Some(dt_s) = super::time_ahead_s(track.t_s, t_s) else {
-                continue;
-            };
-            let (x, var_e, var_n) = self.model.predict_horizontal(&track.x, &track.p, dt_s);
-            out.push(PositionPrediction {
-                dt_s: ahead_s,
-                t_s,
-                pos_m: kalman::rows::<3, _>(&x, 0),
-                pos_sigma_m: super::horizontal_sigma(var_e, var_n),
-            });
-        }
+        super::predict_horizontal_positions(
+            &self.model,
+            track.t_s,
+            &track.x,
+            &track.p,
+            base_t_s,
+            horizons_s,
+            |var_e, var_n| (var_e, var_n),
+            out,
+        );
     }
 }
 

@@ -775,21 +775,17 @@ impl Tracker for HybridTracker {
         // The CV filter's predictions: only the entries read
         // (`MotionModel::predict_horizontal`, the same bits as `predicted`'s).
         if let (Branch::Cv { x, p }, Some(track_t_s)) = (&self.branch, self.init.track_t_s()) {
-            for &ahead_s in horizons_s {
-                let t_s = base_t_s + ahead_s;
-                let Some(dt_s) = super::time_ahead_s(track_t_s, t_s) else {
-                    continue;
-                };
-                let (x, var_e, var_n) =
-                    MotionModel::<6>::predict_horizontal(&self.params.cv, x, p, dt_s);
-                let (var_e, var_n) = self.noise.with_position_bias_var(var_e, var_n);
-                out.push(PositionPrediction {
-                    dt_s: ahead_s,
-                    t_s,
-                    pos_m: kalman::rows::<3, _>(&x, 0),
-                    pos_sigma_m: super::horizontal_sigma(var_e, var_n),
-                });
-            }
+            let bias = |var_e, var_n| self.noise.with_position_bias_var(var_e, var_n);
+            super::predict_horizontal_positions(
+                &self.params.cv,
+                track_t_s,
+                x,
+                p,
+                base_t_s,
+                horizons_s,
+                bias,
+                out,
+            );
             return;
         }
         let steps = horizons_s
@@ -797,12 +793,7 @@ impl Tracker for HybridTracker {
             .map(|&ahead_s| (ahead_s, base_t_s + ahead_s));
         self.predicted(steps, |ahead_s, t_s, x, p| {
             let (var_e, var_n) = self.noise.with_position_bias_var(p[(0, 0)], p[(1, 1)]);
-            out.push(PositionPrediction {
-                dt_s: ahead_s,
-                t_s,
-                pos_m: kalman::rows::<3, _>(x, 0),
-                pos_sigma_m: super::horizontal_sigma(var_e, var_n),
-            });
+            out.push(PositionPrediction::of_state(ahead_s, t_s, x, var_e, var_n));
         });
     }
 }

@@ -150,6 +150,23 @@ pub struct PositionPrediction {
 }
 
 impl PositionPrediction {
+    /// The prediction `dt_s` ahead, at `t_s`, of a predicted state whose leading three
+    /// entries are the position, with its east and north variances.
+    pub fn of_state<const N: usize>(
+        dt_s: f64,
+        t_s: f64,
+        x: &nalgebra::SVector<f64, N>,
+        var_e: f64,
+        var_n: f64,
+    ) -> Self {
+        Self {
+            dt_s,
+            t_s,
+            pos_m: kalman::rows::<3, N>(x, 0),
+            pos_sigma_m: horizontal_sigma(var_e, var_n),
+        }
+    }
+
     /// The prediction `dt_s` ahead that the estimate `e` is.
     pub fn of(dt_s: f64, e: &Estimate) -> Self {
         Self {
@@ -166,6 +183,33 @@ impl PositionPrediction {
 pub fn time_ahead_s(track_t_s: f64, t_s: f64) -> Option<f64> {
     let dt_s = t_s - track_t_s;
     (dt_s.is_finite() && dt_s >= 0.0).then_some(dt_s)
+}
+
+/// The published predictions of a single filter holding (`x`, `p`) at `track_t_s` under
+/// `model`: at each of `horizons_s` ahead of `base_t_s` (those before the track skipped), the
+/// position and the east and north variances alone ([`MotionModel::predict_horizontal`],
+/// the same bits as a whole prediction), the variances passed through `variances` (the
+/// hybrid adds the correlated error it does not filter).
+#[allow(clippy::too_many_arguments)]
+pub fn predict_horizontal_positions<const N: usize>(
+    model: &impl kalman::MotionModel<N>,
+    track_t_s: f64,
+    x: &nalgebra::SVector<f64, N>,
+    p: &nalgebra::SMatrix<f64, N, N>,
+    base_t_s: f64,
+    horizons_s: &[f64],
+    variances: impl Fn(f64, f64) -> (f64, f64),
+    out: &mut Vec<PositionPrediction>,
+) {
+    for &ahead_s in horizons_s {
+        let t_s = base_t_s + ahead_s;
+        let Some(dt_s) = time_ahead_s(track_t_s, t_s) else {
+            continue;
+        };
+        let (x, var_e, var_n) = model.predict_horizontal(x, p, dt_s);
+        let (var_e, var_n) = variances(var_e, var_n);
+        out.push(PositionPrediction::of_state(ahead_s, t_s, &x, var_e, var_n));
+    }
 }
 
 /// sqrt(σₑ² + σₙ²): the 1-sigma horizontal uncertainty of east and north variances (a

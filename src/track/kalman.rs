@@ -590,6 +590,11 @@ fn all_finite(values: &[f64]) -> bool {
 /// substitutions took 2 M C (36 for a 3-vector report on a 6-state filter, a quarter of the
 /// update's time). A product with a rounded reciprocal differs from the quotient by at most
 /// an ulp, so X is nalgebra's to rounding (tested through [`update_selected`]).
+///
+/// Always inlined (one call per update, M and C known there): left to the compiler's
+/// heuristics, the fleet replay ran 1.3 % more of `hybrid`'s instructions and 2.5 % more
+/// of `kalman-cv`'s, for the same bits.
+#[inline(always)]
 fn cholesky_solve_mut<const M: usize, const C: usize>(
     l: &SMatrix<f64, M, M>,
     b: &mut SMatrix<f64, M, C>,

@@ -480,6 +480,10 @@ pub fn sparse_fpf_into<const N: usize>(
 /// dⱼ = ℓⱼⱼ² where ℓ is the Cholesky factor: this is the same test as a Cholesky
 /// factorisation (it fails on the same matrices up to rounding), without its N square
 /// roots. A NaN pivot fails too.
+///
+/// Always inlined: every update checks its posterior once, N known there (it ran 1.5 % of
+/// `kalman-cv`'s instructions and 0.8 % of `hybrid`'s on the fleet more as a call).
+#[inline(always)]
 pub fn is_positive_definite<const N: usize>(a: &SMatrix<f64, N, N>) -> bool {
     // l[(j, k)] for k < j holds Lⱼₖ; inv_d the pivots' reciprocals (one division per pivot,
     // not one per entry); w the unscaled entries Lⱼₘ dₘ of the row being factored, so each

@@ -125,31 +125,35 @@ impl<const N: usize> Prediction<N> {
     /// The block of rows and columns `offset..offset + 3` of [`Prediction::covariance`]
     /// (`adapt`), without forming the rest: entry by entry the same arithmetic.
     pub fn covariance_block3(&self, adapt: f64, offset: usize) -> nalgebra::Matrix3<f64> {
-        let entry = |i: usize, j: usize| {
-            let a = self.fpf.get((i, j)).copied().unwrap_or(0.0) * adapt
-                + self.q.get((i, j)).copied().unwrap_or(0.0);
-            let b = self.fpf.get((j, i)).copied().unwrap_or(0.0) * adapt
-                + self.q.get((j, i)).copied().unwrap_or(0.0);
-            (a + b) * 0.5
-        };
-        nalgebra::Matrix3::from_fn(|i, j| entry(offset + i, offset + j))
+        nalgebra::Matrix3::from_fn(|i, j| self.covariance_entry(adapt, offset + i, offset + j))
     }
 
-    /// P(k+1|k) = Adapt·Φ P Φᵀ + Q (eq. 25; Adapt = 1 is the ordinary eq. 6), symmetrised.
-    ///
-    /// Entry by entry the arithmetic of `symmetrise(fpf * adapt + q)`, each entry and its
-    /// mirror from the one sum (a sum is the same in either order), without the scaled
-    /// temporary, and without the products by 1 of every nominal step (x·1 = x exactly).
+    /// Entry (i, j) of [`Prediction::covariance`] (`adapt`), 0 outside the matrix: the sums
+    /// of `symmetrise(fpf * adapt + q)`, ((Adapt·ΦPΦᵀ + Q)ᵢⱼ + (Adapt·ΦPΦᵀ + Q)ⱼᵢ)/2, and so
+    /// also entry (j, i) (a sum is the same in either order). A nominal step (Adapt = 1)
+    /// skips the products by 1 (x·1 = x exactly).
+    #[inline(always)]
+    fn covariance_entry(&self, adapt: f64, i: usize, j: usize) -> f64 {
+        let term = |r: usize, c: usize| {
+            let f = self.fpf.get((r, c)).copied().unwrap_or(0.0);
+            let q = self.q.get((r, c)).copied().unwrap_or(0.0);
+            if adapt == 1.0 {
+                f + q
+            } else {
+                f * adapt + q
+            }
+        };
+        (term(i, j) + term(j, i)) * 0.5
+    }
+
+    /// P(k+1|k) = Adapt·Φ P Φᵀ + Q (eq. 25; Adapt = 1 is the ordinary eq. 6), symmetrised:
+    /// formed over its lower triangle and mirrored ([`Prediction::covariance_entry`]),
+    /// without the scaled sum as a temporary (0.6 % of `hybrid`'s fleet instructions).
     pub fn covariance(&self, adapt: f64) -> SMatrix<f64, N, N> {
         let mut p = SMatrix::<f64, N, N>::zeros();
-        let (f, q) = (&self.fpf, &self.q);
         for j in 0..N {
             for i in j..N {
-                let v = if adapt == 1.0 {
-                    ((f[(i, j)] + q[(i, j)]) + (f[(j, i)] + q[(j, i)])) * 0.5
-                } else {
-                    ((f[(i, j)] * adapt + q[(i, j)]) + (f[(j, i)] * adapt + q[(j, i)])) * 0.5
-                };
+                let v = self.covariance_entry(adapt, i, j);
                 p[(i, j)] = v;
                 p[(j, i)] = v;
             }

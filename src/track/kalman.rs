@@ -481,8 +481,8 @@ pub fn sparse_fpf_into<const N: usize>(
 /// factorisation (it fails on the same matrices up to rounding), without its N square
 /// roots. A NaN pivot fails too.
 ///
-/// Always inlined: every update checks its posterior once, N known there (it ran 1.5 % of
-/// `kalman-cv`'s instructions and 0.8 % of `hybrid`'s on the fleet more as a call).
+/// Always inlined: every update checks its posterior once, N known there (as a call it
+/// cost 1.5 % more of `kalman-cv`'s fleet instructions and 0.8 % more of `hybrid`'s).
 #[inline(always)]
 pub fn is_positive_definite<const N: usize>(a: &SMatrix<f64, N, N>) -> bool {
     // l[(j, k)] for k < j holds Lⱼₖ; inv_d the pivots' reciprocals (one division per pivot,

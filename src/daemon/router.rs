@@ -187,17 +187,30 @@ pub async fn run_router(
         stats.add_decode(decoder.stats(), &flushed);
         flushed = decoder.stats().clone();
 
-        // Retire before sending, so a replay loop that jumps ahead in time starts afresh
-        // (an aircraft with messages in this batch is kept).
+        // Retire before sending, so a replay loop that jumps ahead in time starts afresh.
+        // Silence is measured from an aircraft's last message, in this batch or before: an
+        // aircraft whose messages of this batch all came before the cutoff is retired after
+        // it gets them, as it would have been had the feed come in smaller batches.
         if now_s >= next_sweep_s {
             let cutoff = now_s - cfg.retire_after_s;
             aircraft.retain(|icao, h| {
-                let keep = h.last_seen_s >= cutoff || !h.pending.is_empty();
+                let heard_s = h
+                    .pending
+                    .last()
+                    .map_or(h.last_seen_s, |p| p.time_s.max(h.last_seen_s));
+                let keep = heard_s >= cutoff;
                 if !keep {
                     tracing::debug!(%icao, "retired after silence");
                     ctx.registry.remove(*icao);
                     stats.tracks_retired.inc();
                     stats.tracks_active.dec();
+                    if !h.pending.is_empty() {
+                        retiring.push(Handle {
+                            tx: h.tx.clone(),
+                            pending: std::mem::take(&mut h.pending),
+                            ..*h
+                        });
+                    }
                 }
                 keep
             });
@@ -208,7 +221,7 @@ pub async fn run_router(
         // every aircraft heard in this batch its messages.
         let mut stopping = false;
         for mut old in retiring.drain(..) {
-            let sent = deliver(&mut old, &batch, now_s, cfg.overload, &ctx, &mut drops).await;
+            let sent = deliver(&mut old, &batch, cfg.overload, &ctx, &mut drops).await;
             if sent == Delivery::Shutdown {
                 stopping = true;
                 break;
@@ -221,7 +234,7 @@ pub async fn run_router(
             let Some(handle) = aircraft.get_mut(&icao) else {
                 continue;
             };
-            match deliver(handle, &batch, now_s, cfg.overload, &ctx, &mut drops).await {
+            match deliver(handle, &batch, cfg.overload, &ctx, &mut drops).await {
                 Delivery::Sent => {}
                 Delivery::Shutdown => stopping = true,
                 Delivery::Gone => {
@@ -262,17 +275,24 @@ enum Delivery {
 async fn deliver(
     handle: &mut Handle,
     batch: &FrameBatch,
-    now_s: f64,
     overload: Overload,
     ctx: &TaskContext,
     drops: &mut DropLog,
 ) -> Delivery {
+    // An aircraft replaced in this batch (silent past the retirement delay, then heard
+    // again) is listed twice among those touched: the second time it has nothing pending.
+    // Nothing is sent then, and it is not "seen" at the batch's newest time: that made its
+    // next silence look shorter by up to a batch's span of feed time, so how often a track
+    // was retired depended on how the file was read (LAX: 247 tracks with 256 KiB chunks,
+    // 244 with 1 MiB ones).
+    let Some(last) = handle.pending.last().map(|d| d.time_s) else {
+        return Delivery::Sent;
+    };
     let stats = &ctx.stats;
     let arrived = batch.arrived;
     let done = batch.done.clone();
     let msgs = std::mem::take(&mut handle.pending);
     handle.last_batch_len = msgs.len();
-    let last = msgs.last().map_or(now_s, |d| d.time_s);
     handle.last_seen_s = handle.last_seen_s.max(last);
     handle.last_arrival = arrived;
     let n = msgs.len();
@@ -444,7 +464,7 @@ mod tests {
         let mut drops = DropLog::default();
         let (mut h, mut rx) = handle(3);
         let b = batch();
-        let sent = deliver(&mut h, &b, 0.0, Overload::Backpressure, &ctx, &mut drops).await;
+        let sent = deliver(&mut h, &b, Overload::Backpressure, &ctx, &mut drops).await;
         assert_eq!(sent, Delivery::Sent);
         assert_eq!(ctx.stats.aircraft_queued(), 3);
 
@@ -453,7 +473,6 @@ mod tests {
         let mut waiting = Box::pin(deliver(
             &mut h,
             &b,
-            0.0,
             Overload::Backpressure,
             &ctx,
             &mut drops,
@@ -473,7 +492,7 @@ mod tests {
         // waiting batch's frames leave the budget.
         ctx.stats.release_frames(first.permits);
         fill(&mut h, 4);
-        let waiting = deliver(&mut h, &b, 0.0, Overload::Backpressure, &ctx, &mut drops);
+        let waiting = deliver(&mut h, &b, Overload::Backpressure, &ctx, &mut drops);
         let stop = async {
             tokio::time::sleep(Duration::from_millis(20)).await;
             ctx.shutdown.cancel();
@@ -485,9 +504,26 @@ mod tests {
         assert_eq!((second.msgs.len(), second.permits), (2, 2));
         // Once shut down, nothing more is sent, room or not.
         fill(&mut h, 1);
-        let late = deliver(&mut h, &b, 0.0, Overload::Backpressure, &ctx, &mut drops).await;
+        let late = deliver(&mut h, &b, Overload::Backpressure, &ctx, &mut drops).await;
         assert_eq!(late, Delivery::Shutdown);
         assert!(rx.try_recv().is_err());
+    }
+
+    /// An aircraft with nothing pending (listed twice among those touched, when it was
+    /// replaced in the batch) is sent nothing and is not marked as heard at the batch's
+    /// time: its next silence is measured from its last message.
+    #[tokio::test]
+    async fn nothing_pending_sends_nothing_and_is_not_heard() {
+        let ctx = context();
+        let mut drops = DropLog::default();
+        let (mut h, mut rx) = handle(1);
+        h.last_seen_s = 12.5;
+        h.pending.clear();
+        let sent = deliver(&mut h, &batch(), Overload::Backpressure, &ctx, &mut drops).await;
+        assert_eq!(sent, Delivery::Sent);
+        assert!(rx.try_recv().is_err());
+        assert_eq!(h.last_seen_s, 12.5);
+        assert_eq!(ctx.stats.aircraft_queued(), 0);
     }
 
     /// A batch for a task that is gone is counted as dropped, its frames given back.
@@ -497,15 +533,7 @@ mod tests {
         let mut drops = DropLog::default();
         let (mut h, rx) = handle(3);
         drop(rx);
-        let sent = deliver(
-            &mut h,
-            &batch(),
-            0.0,
-            Overload::Backpressure,
-            &ctx,
-            &mut drops,
-        )
-        .await;
+        let sent = deliver(&mut h, &batch(), Overload::Backpressure, &ctx, &mut drops).await;
         assert_eq!(sent, Delivery::Gone);
         assert_eq!(ctx.stats.aircraft_queued(), 0);
         assert_eq!(ctx.stats.channel_dropped_messages.get(), 3);

@@ -33,10 +33,11 @@ use tokio::io::AsyncWriteExt;
 use tokio::sync::mpsc;
 use tokio_util::sync::CancellationToken;
 
-/// Capacity of the feed -> router channel, in batches (one socket read or file chunk of up to
-/// 256 KiB, ~11,000 Beast frames, each). Eight absorb a burst of ~90,000 frames while the
-/// router is busy; more would only hold memory (a replay fills whatever it is given).
-const FEED_CHANNEL_BATCHES: usize = 8;
+/// Capacity of the feed -> router channel, in batches: a socket read of up to 256 KiB
+/// (~11,000 Beast frames) or a file chunk of 1 MiB (~45,000). Four hold half a second of a
+/// 100 k frames/s feed while the router is busy; more would only hold memory (a replay
+/// fills whatever it is given: eight 1 MiB chunks were 8 MiB more of RSS for no speed).
+const FEED_CHANNEL_BATCHES: usize = 4;
 
 /// Where the frames come from.
 #[derive(Clone, Debug)]

@@ -957,8 +957,7 @@ impl Gate {
                 if let Some((rate, sigma, t_ref)) =
                     hinge_onset(all, &turn_onset.sums, p.onset_reports, lambda, heading_ty)
                 {
-                    let a = rate.abs();
-                    r.flags.turn_onset = a > lambda && a > p.onset_sigmas * sigma;
+                    r.flags.turn_onset = onset_fires(rate, sigma, lambda, false, &p);
                     r.onset_turn_rate_rad_s = Some(rate);
                     onset_s = Some(t_ref + t0);
                 }
@@ -1005,13 +1004,8 @@ impl Gate {
                 // With hysteresis, like every rate test: the trend test's slope is still
                 // diluted when the onset test finds a gentle acceleration, and would let it
                 // flicker.
-                let scale = if old.accel_onset || old.along_track {
-                    p.release_ratio
-                } else {
-                    1.0
-                };
-                let a = rate.abs();
-                r.flags.accel_onset = a > scale * lambda && a > scale * p.onset_sigmas * sigma;
+                let held = old.accel_onset || old.along_track;
+                r.flags.accel_onset = onset_fires(rate, sigma, lambda, held, &p);
                 r.onset_accel_mps2 = Some(rate);
             }
         }
@@ -1104,6 +1098,14 @@ impl Gate {
             r.flags.accel_change = fires(da, 0.0, p.accel_change_mps2, old.accel_change, p);
         }
     }
+}
+
+/// An onset test's decision on its fitted rate: |rate| > λ and |rate| > kσ (k =
+/// `onset_sigmas`), both scaled by `release_ratio` while the change it starts is `held`.
+fn onset_fires(rate: f64, sigma: f64, lambda: f64, held: bool, p: &GateParams) -> bool {
+    let scale = if held { p.release_ratio } else { 1.0 };
+    let a = rate.abs();
+    a > scale * lambda && a > scale * p.onset_sigmas * sigma
 }
 
 /// One test with significance and hysteresis: |stat| > λ and |stat| > kσ to fire; once
@@ -1819,8 +1821,7 @@ mod tests {
                     .map(|s| (s.t_s, s.heading_rad, s.heading_var()))
                     .collect();
                 if let Some((rate, sigma, _)) = hinge_reference(&pts, p.onset_reports, lambda) {
-                    let a = rate.abs();
-                    r.flags.turn_onset = a > lambda && a > p.onset_sigmas * sigma;
+                    r.flags.turn_onset = onset_fires(rate, sigma, lambda, false, &p);
                     r.onset_turn_rate_rad_s = Some(rate);
                 }
             }
@@ -1842,13 +1843,8 @@ mod tests {
                 let pts: Vec<_> = all.iter().map(|s| (s.t_s, s.speed_mps, s.var_h)).collect();
                 if let Some((rate, sigma, _)) = hinge_reference(&pts, p.accel_onset_reports, lambda)
                 {
-                    let scale = if old.accel_onset || old.along_track {
-                        p.release_ratio
-                    } else {
-                        1.0
-                    };
-                    let a = rate.abs();
-                    r.flags.accel_onset = a > scale * lambda && a > scale * p.onset_sigmas * sigma;
+                    let held = old.accel_onset || old.along_track;
+                    r.flags.accel_onset = onset_fires(rate, sigma, lambda, held, &p);
                     r.onset_accel_mps2 = Some(rate);
                 }
             }

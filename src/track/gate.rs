@@ -936,7 +936,7 @@ impl Gate {
         // (t, y) of a sample in the coordinates of the sums.
         let heading_ty = |s: &Sample| (s.t_s - t0, s.heading_rad - heading0);
         let speed_ty = |s: &Sample| (s.t_s - t0, s.speed_mps - speed0);
-        let newest_of = |n: usize| held.get(len - n..).unwrap_or(&[]);
+        let newest_of = |n: usize| held.get(len.saturating_sub(n)..).unwrap_or(&[]);
 
         // Turn rate: slope of the unwrapped heading (a turn that began with the onset test
         // is held by this one at its release thresholds).

@@ -55,6 +55,14 @@ struct Handle {
     last_batch_len: usize,
 }
 
+impl Handle {
+    /// Feed time it was last heard: its newest pending message's, else its last delivered
+    /// batch's.
+    fn heard_s(&self) -> f64 {
+        self.pending.last().map_or(self.last_seen_s, |p| p.time_s)
+    }
+}
+
 /// Router settings.
 pub struct RouterConfig {
     pub decoder: DecoderConfig,
@@ -152,8 +160,7 @@ pub async fn run_router(
                     // in this batch. Its messages of the batch before the gap still go to
                     // the old task.
                     let h = e.get();
-                    let heard_s = h.pending.last().map_or(h.last_seen_s, |p| p.time_s);
-                    if d.time_s - heard_s > cfg.retire_after_s {
+                    if d.time_s - h.heard_s() > cfg.retire_after_s {
                         tracing::debug!(icao = %d.icao, "retired after silence (seen again)");
                         stats.tracks_retired.inc();
                         stats.tracks_active.dec();
@@ -194,11 +201,7 @@ pub async fn run_router(
         if now_s >= next_sweep_s {
             let cutoff = now_s - cfg.retire_after_s;
             aircraft.retain(|icao, h| {
-                let heard_s = h
-                    .pending
-                    .last()
-                    .map_or(h.last_seen_s, |p| p.time_s.max(h.last_seen_s));
-                let keep = heard_s >= cutoff;
+                let keep = h.heard_s().max(h.last_seen_s) >= cutoff;
                 if !keep {
                     tracing::debug!(%icao, "retired after silence");
                     ctx.registry.remove(*icao);

@@ -179,13 +179,23 @@ impl Default for ImmParams {
     }
 }
 
-/// ln Σ exp(aᵢ) without overflow or underflow; −∞ when every term is −∞.
-fn log_sum_exp(values: &[f64]) -> f64 {
-    let max = values.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
-    if max == f64::NEG_INFINITY || max.is_nan() {
-        return f64::NEG_INFINITY;
+/// Weights proportional to exp(aᵢ) for log-weights aᵢ, scaled so that the largest is 1:
+/// exp(aᵢ − max a), which neither overflows nor underflows where it matters (the largest
+/// weight is exactly 1, so their sum is at least 1 and normalising by it is safe; a weight
+/// that underflows to 0 is below 1e-308 of the largest). `None` when no aᵢ is finite.
+///
+/// The posterior mode probabilities are these weights normalised. (They were
+/// exp(aᵢ − ln Σ exp aⱼ), which computed every exponential twice and a logarithm: 1 % of
+/// the default tracker's fleet replay instructions, for the same numbers to rounding.)
+fn relative_weights<const N: usize>(log_weights: &[f64; N]) -> Option<[f64; N]> {
+    let max = log_weights
+        .iter()
+        .cloned()
+        .fold(f64::NEG_INFINITY, f64::max);
+    if !max.is_finite() {
+        return None;
     }
-    max + values.iter().map(|v| (v - max).exp()).sum::<f64>().ln()
+    Some(log_weights.map(|a| (a - max).exp()))
 }
 
 /// Entries of a 9x9 symmetric matrix's upper triangle.
@@ -836,16 +846,8 @@ impl Imm {
         if !any_ok {
             return Err(first_error.unwrap_or(TrackError::NotPositiveDefinite));
         }
-        let norm = log_sum_exp(&log_post);
-        let mut mu = [0.0; N_MODES];
-        if norm.is_finite() {
-            for (m, lp) in mu.iter_mut().zip(log_post.iter()) {
-                *m = (lp - norm).exp();
-            }
-        } else {
-            // No finite likelihood: keep the predicted probabilities.
-            mu = self.normalised(&c_bar);
-        }
+        // Normalised below; no finite likelihood keeps the predicted probabilities.
+        let mu = relative_weights(&log_post).unwrap_or(c_bar);
         self.cv_blocks = cv_blocks;
         let states = self.states_mut();
         states.x = x_new;
@@ -1542,13 +1544,19 @@ mod tests {
     }
 
     #[test]
-    fn log_sum_exp_survives_what_linear_space_does_not() {
-        // e^-1e5 underflows to 0 in f64; the log form keeps the ratio.
+    fn relative_weights_survive_what_linear_space_does_not() {
+        // e^-1e5 underflows to 0 in f64; the shifted weights keep the ratio.
         let v = [-1.0e5, -1.0e5 - 2f64.ln(), f64::NEG_INFINITY];
-        let l = log_sum_exp(&v);
-        assert!((l - (-1.0e5 + 1.5f64.ln())).abs() < 1e-9);
+        let w = relative_weights(&v).unwrap_or_default();
+        assert_eq!(w[0], 1.0);
+        assert!((w[1] - 0.5).abs() < 1e-9); // -1e5 - ln 2 is rounded to 1e5's ulp
+        assert_eq!(w[2], 0.0);
         assert!((-1.0e5f64).exp() == 0.0);
-        assert_eq!(log_sum_exp(&[f64::NEG_INFINITY; 3]), f64::NEG_INFINITY);
+        assert_eq!(relative_weights(&[f64::NEG_INFINITY; 3]), None);
+        // A NaN log-weight stays NaN (the normalisation then gives its mode nothing) and
+        // does not become the shift.
+        let w = relative_weights(&[f64::NAN, 1.0]).unwrap_or_default();
+        assert!(w[0].is_nan() && w[1] == 1.0);
     }
 
     #[test]

@@ -1,6 +1,7 @@
 //! Issue 9's memory budget: under 16 KiB of RSS per aircraft at 1,000 aircraft (README,
-//! "Speed": 14.1-14.4 KiB with the default tracker after 9.3 minutes of feed, the trails
-//! nearly full; 15.8-16.4 KiB before the trails were stored as prediction errors). What an aircraft holds besides its trail is mostly these
+//! "At fleet scale": 14.1-14.6 KiB with the default tracker after 9.3 minutes of feed, the
+//! trails nearly full; 15.8-16.4 KiB before the trails were stored as prediction errors,
+//! `docs/speed.md`). What an aircraft holds besides its trail is mostly these
 //! structs; a change that grows one shows here, before a fleet benchmark would show it
 //! (the README's figure had gone stale at 18 KiB while the real one grew to 30 KiB).
 

@@ -387,7 +387,15 @@ fn mode_step<const K: usize>(
     let x0 = weighted_mean::<K>(&input.states.x, input.w);
     let p0 = spread_sum::<K>(&input.states.x, &input.states.p, input.w, &x0);
     let (f, q) = model.leading_fq(input.dt_s);
-    let pred = Prediction::<K>::from_fq(&f, q, &x0, &p0);
+    // Formed here rather than returned by `Prediction::from_fq` (the same arithmetic): the
+    // returned value was copied into this frame, 1 % of the default tracker's fleet
+    // instructions.
+    let mut pred = Prediction::<K> {
+        x: f * x0,
+        fpf: SMatrix::zeros(),
+        q,
+    };
+    kalman::sparse_fpf_into(&f, &p0, &mut pred.fpf);
     guarded_mode(&pred, input, |x, p| embed(x, p, reset_var, x_out, p_out))
 }
 

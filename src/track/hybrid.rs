@@ -355,7 +355,16 @@ impl HybridTracker {
     fn filter_step(&mut self, dt_s: f64, obs: &Observation) -> Result<(), TrackError> {
         let nis = match &mut self.branch {
             Branch::Cv { x, p } => {
-                let pred = Prediction::<6>::new(&self.params.cv, x, p, dt_s);
+                // Formed here, as the IMM's modes form theirs (`imm::mode_step`): returned
+                // by `Prediction::new`, it was copied into this frame (0.5 % of the fleet's
+                // instructions).
+                let (f, q) = MotionModel::<6>::fq(&self.params.cv, dt_s);
+                let mut pred = Prediction::<6> {
+                    x: f * *x,
+                    fpf: Matrix6::zeros(),
+                    q,
+                };
+                kalman::sparse_fpf_into(&f, p, &mut pred.fpf);
                 let (mut x_new, mut p_new) = (State6::zeros(), Matrix6::zeros());
                 let g = guarded_update(
                     &pred,

@@ -52,18 +52,13 @@ struct Fixed {
 /// (about 30 instructions), and a trail point rounds seven values (1.1 % of a `kalman-cv`
 /// fleet replay's instructions). x − trunc(x) is exact (the fraction of a float is a
 /// float), so comparing it with ±½ decides as `round` does; a |x| past i64's range
-/// saturates either way.
+/// saturates either way. Without branches: which way a value rounds is a coin toss, and a
+/// branch on it would be mispredicted half the time.
 #[inline(always)]
 fn round_to_i64(x: f64) -> i64 {
     let t = x as i64;
     let frac = x - t as f64;
-    if frac >= 0.5 {
-        t.saturating_add(1)
-    } else if frac <= -0.5 {
-        t.saturating_sub(1)
-    } else {
-        t
-    }
+    t.saturating_add(i64::from(frac >= 0.5) - i64::from(frac <= -0.5))
 }
 
 impl Fixed {

@@ -96,6 +96,12 @@ pub struct Prediction<const N: usize> {
 
 impl<const N: usize> Prediction<N> {
     /// Predicts `(x, p)` over `dt_s` with `model`.
+    ///
+    /// The returned value is copied into the caller's frame (its product is written through
+    /// a reference, which keeps the compiler from building it where it is returned): the
+    /// per-report paths, the IMM's modes (`imm::mode_step`) and the hybrid's CV filter, form
+    /// their prediction in place with the same three steps instead (a `memcpy` of 624 or
+    /// 1,088 bytes a mode a report was 1.5 % of the default tracker's fleet instructions).
     pub fn new(
         model: &dyn MotionModel<N>,
         x: &SVector<f64, N>,
@@ -103,22 +109,12 @@ impl<const N: usize> Prediction<N> {
         dt_s: f64,
     ) -> Self {
         let (f, q) = model.fq(dt_s);
-        Self::from_fq(&f, q, x, p)
-    }
-
-    /// Predicts `(x, p)` with the transition `f` and the process noise `q` of one step.
-    pub fn from_fq(
-        f: &SMatrix<f64, N, N>,
-        q: SMatrix<f64, N, N>,
-        x: &SVector<f64, N>,
-        p: &SMatrix<f64, N, N>,
-    ) -> Self {
         let mut pred = Self {
             x: f * x,
             fpf: SMatrix::zeros(),
             q,
         };
-        kalman::sparse_fpf_into(f, p, &mut pred.fpf);
+        kalman::sparse_fpf_into(&f, p, &mut pred.fpf);
         pred
     }
 

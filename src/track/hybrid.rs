@@ -355,9 +355,7 @@ impl HybridTracker {
     fn filter_step(&mut self, dt_s: f64, obs: &Observation) -> Result<(), TrackError> {
         let nis = match &mut self.branch {
             Branch::Cv { x, p } => {
-                // Formed here, as the IMM's modes form theirs (`imm::mode_step`): returned
-                // by `Prediction::new`, it was copied into this frame (0.5 % of the fleet's
-                // instructions).
+                // Formed in place, as `Prediction::new` forms it (its doc says why).
                 let (f, q) = MotionModel::<6>::fq(&self.params.cv, dt_s);
                 let mut pred = Prediction::<6> {
                     x: f * *x,

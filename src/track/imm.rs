@@ -387,9 +387,7 @@ fn mode_step<const K: usize>(
     let x0 = weighted_mean::<K>(&input.states.x, input.w);
     let p0 = spread_sum::<K>(&input.states.x, &input.states.p, input.w, &x0);
     let (f, q) = model.leading_fq(input.dt_s);
-    // Formed here rather than returned by `Prediction::from_fq` (the same arithmetic): the
-    // returned value was copied into this frame, 1 % of the default tracker's fleet
-    // instructions.
+    // Formed in place, as `Prediction::new` forms it (its doc says why).
     let mut pred = Prediction::<K> {
         x: f * x0,
         fpf: SMatrix::zeros(),

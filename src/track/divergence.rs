@@ -94,14 +94,29 @@ pub struct Prediction<const N: usize> {
     pub q: SMatrix<f64, N, N>,
 }
 
+/// `let_prediction!(pred = f, q; x, p)` binds `pred` to the [`Prediction`] of `(x, p)` with
+/// the transition `f` and the process noise `q` of one step, formed in the caller's frame.
+///
+/// A macro, not a function: a function returning the prediction had it copied into its
+/// caller's frame (Φ P Φᵀ is written through a reference, which keeps the compiler from
+/// building the value where it is returned), a `memcpy` of 624 or 1,088 bytes a mode a
+/// report on the per-report paths (the IMM's modes, the hybrid's CV filter): 1.5 % of the
+/// default tracker's fleet instructions.
+macro_rules! let_prediction {
+    ($pred:ident = $f:expr, $q:expr; $x:expr, $p:expr) => {
+        let f = &$f;
+        let mut $pred = $crate::track::divergence::Prediction {
+            x: f * $x,
+            fpf: nalgebra::SMatrix::zeros(),
+            q: $q,
+        };
+        $crate::track::kalman::sparse_fpf_into(f, $p, &mut $pred.fpf);
+    };
+}
+pub(crate) use let_prediction;
+
 impl<const N: usize> Prediction<N> {
-    /// Predicts `(x, p)` over `dt_s` with `model`.
-    ///
-    /// The returned value is copied into the caller's frame (its product is written through
-    /// a reference, which keeps the compiler from building it where it is returned): the
-    /// per-report paths, the IMM's modes (`imm::mode_step`) and the hybrid's CV filter, form
-    /// their prediction in place with the same three steps instead (a `memcpy` of 624 or
-    /// 1,088 bytes a mode a report was 1.5 % of the default tracker's fleet instructions).
+    /// Predicts `(x, p)` over `dt_s` with `model` ([`let_prediction`], returned).
     pub fn new(
         model: &dyn MotionModel<N>,
         x: &SVector<f64, N>,
@@ -109,12 +124,7 @@ impl<const N: usize> Prediction<N> {
         dt_s: f64,
     ) -> Self {
         let (f, q) = model.fq(dt_s);
-        let mut pred = Self {
-            x: f * x,
-            fpf: SMatrix::zeros(),
-            q,
-        };
-        kalman::sparse_fpf_into(&f, p, &mut pred.fpf);
+        let_prediction!(pred = f, q; x, p);
         pred
     }
 

@@ -32,7 +32,7 @@
 //!   CV, CA, CH, CHCA, or CT at the rate of the current turn as the gate measures it
 //!   ([`Gate::turn_rate_since_start_rad_s`]).
 
-use super::divergence::{guarded_update, DivergenceParams, Observation, Prediction};
+use super::divergence::{guarded_update, let_prediction, DivergenceParams, Observation};
 use super::gate::{Gate, GateFlags, GateParams, GateReading};
 use super::imm::{
     estimate_of, labels_of_mode, AxisThresholds, EstimateInfo, Imm, ImmMode, ImmParams, InitParams,
@@ -355,14 +355,8 @@ impl HybridTracker {
     fn filter_step(&mut self, dt_s: f64, obs: &Observation) -> Result<(), TrackError> {
         let nis = match &mut self.branch {
             Branch::Cv { x, p } => {
-                // Formed in place, as `Prediction::new` forms it (its doc says why).
                 let (f, q) = MotionModel::<6>::fq(&self.params.cv, dt_s);
-                let mut pred = Prediction::<6> {
-                    x: f * *x,
-                    fpf: Matrix6::zeros(),
-                    q,
-                };
-                kalman::sparse_fpf_into(&f, p, &mut pred.fpf);
+                let_prediction!(pred = f, q; *x, p);
                 let (mut x_new, mut p_new) = (State6::zeros(), Matrix6::zeros());
                 let g = guarded_update(
                     &pred,

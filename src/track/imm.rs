@@ -23,7 +23,9 @@
 //! Works with position-only, velocity-only and joint reports: the likelihood is that of
 //! whatever the report measured. Everything is in fixed-size arrays: no allocation.
 
-use super::divergence::{guarded_update, DivergenceParams, Observation, Prediction};
+use super::divergence::{
+    guarded_update, let_prediction, DivergenceParams, Observation, Prediction,
+};
 use super::kalman::{self, MotionModel};
 use super::models::{
     Ca, Ch, Chca, Ct, Cv, Matrix6, Matrix9, Model, ResetTail, State6, State9, ACC, POS, VEL,
@@ -387,13 +389,7 @@ fn mode_step<const K: usize>(
     let x0 = weighted_mean::<K>(&input.states.x, input.w);
     let p0 = spread_sum::<K>(&input.states.x, &input.states.p, input.w, &x0);
     let (f, q) = model.leading_fq(input.dt_s);
-    // Formed in place, as `Prediction::new` forms it (its doc says why).
-    let mut pred = Prediction::<K> {
-        x: f * x0,
-        fpf: SMatrix::zeros(),
-        q,
-    };
-    kalman::sparse_fpf_into(&f, &p0, &mut pred.fpf);
+    let_prediction!(pred = f, q; x0, &p0);
     guarded_mode(&pred, input, |x, p| embed(x, p, reset_var, x_out, p_out))
 }
 

@@ -7,18 +7,19 @@
 //!   declared NACp literally and learns nothing, stays flagged on ~45 % of the LAX NACp 10
 //!   updates: its covariance there is a third of what the data show.
 //! - The hybrid and the IMM learn each aircraft's noise (`track::noise`): on AFR34ZG
-//!   (declares nothing, so R starts from NUCp's 38 m per axis) the hybrid's NIS per degree of
-//!   freedom moves from 0.04 to about 0.3 (the IMM's from 0.08 to 0.46) and its position
-//!   sigma from 7 m to about 1.6 m; on LAX NACp 10 from 3.5 to about 2. A third is what
-//!   honest horizontal positions give when the other components' innovations are zero
-//!   (altitude, vertical rate and, at cruise, velocity hold still between quantisation
-//!   steps). Before the learner winsorised its samples (`NoiseParams::outlier_ratio`), a
-//!   few outlying reports held the hybrid's learned noise up and its NIS/dof at 0.1.
-//! - The windowed NIS is still seldom inside its band (under 25 % here, a third at most on
-//!   any recording in docs/evaluation.md): the innovations are not
-//!   Gaussian white noise. They are quantised (constant altitude,
-//!   vertical rate and, at cruise, velocity steps) on AFR34ZG, and heavy-tailed under LAX's
-//!   approximate timing (docs/evaluation.md).
+//!   (declares nothing, so R starts from NUCp's 38 m per axis) the hybrid's position sigma
+//!   moves from 7 m to about 1.6 m, its windowed NIS per degree of freedom to about 0.4
+//!   (the IMM's 0.6; the plain Kalman filter's 0.03). The NIS is over the horizontal
+//!   components (`track::nis`): at cruise the velocity reports hold still between 1-kt
+//!   steps, so half of what it sums stays near zero. Before the learner winsorised its
+//!   samples (`NoiseParams::outlier_ratio`), a few outlying reports held the hybrid's
+//!   learned noise up.
+//! - The windowed NIS is still seldom inside its band here (under 10 % for the hybrid on
+//!   AFR34ZG, 40 % for the IMM; 19 % for the hybrid's LAX NACp 10 aircraft), where the same
+//!   statistic is inside it on 93-94 % of the updates on the simulator's white noise
+//!   (`tests/tracker_bench.rs`): the statistic is calibrated, these innovations are not
+//!   Gaussian white noise. They are quantised (velocity steps at cruise) on AFR34ZG, and
+//!   heavy-tailed under LAX's approximate timing (docs/evaluation.md).
 //!
 //! A change that moves these figures must update them here and in docs/evaluation.md.
 
@@ -42,10 +43,10 @@ fn within(what: &str, x: Option<f64>, lo: f64, hi: f64) {
 
 #[test]
 fn afr34zg_is_rarely_flagged() {
-    for (tracker, nis_dof, sigma_m) in [
-        ("hybrid", (0.25, 0.45), (1.2, 2.5)),
-        ("kalman-cv", (0.05, 0.2), (6.0, 9.0)),
-        ("imm", (0.25, 0.7), (1.0, 3.0)),
+    for (tracker, nis_dof, sigma_m, in_band_pct) in [
+        ("hybrid", (0.3, 0.55), (1.2, 2.5), (2.0, 20.0)),
+        ("kalman-cv", (0.01, 0.08), (6.0, 9.0), (0.0, 15.0)),
+        ("imm", (0.4, 0.8), (1.0, 3.0), (25.0, 55.0)),
     ] {
         let g = groups("afr34zg-cdg-tls.jsonl", 1000.0, tracker);
         let all = &g["all"];
@@ -84,8 +85,8 @@ fn afr34zg_is_rarely_flagged() {
         within(
             &format!("{tracker} NIS in band %"),
             all.nis_in_band_pct(),
-            0.0,
-            25.0,
+            in_band_pct.0,
+            in_band_pct.1,
         );
     }
 }
@@ -113,13 +114,14 @@ fn lax_every_nacp_is_rarely_flagged() {
             2.5,
         );
     }
-    // The hybrid's NACp 10 aircraft: NIS per degree of freedom 1.9 (3.5 without learning).
+    // The hybrid's NACp 10 aircraft: horizontal NIS per degree of freedom 3.1 (5.5 without
+    // learning).
     let g = groups("lax-messages.avr.txt", 270.0, "hybrid");
     within(
         "hybrid NACp 10 NIS/dof",
         g["10"].median_nis_per_dof(),
-        1.4,
-        2.5,
+        2.4,
+        3.8,
     );
 }
 
@@ -134,7 +136,7 @@ fn lax_nacp10_taken_literally_is_overconfident() {
         35.0,
         55.0,
     );
-    within("NACp 10 NIS/dof", n10.median_nis_per_dof(), 6.0, 14.0);
+    within("NACp 10 NIS/dof", n10.median_nis_per_dof(), 10.0, 20.0);
     // The less an aircraft claims, the less often it is flagged.
     let pct = |k: &str| g[k].steady_diverging_pct().unwrap();
     assert!(pct("10") > pct("9") && pct("9") > pct("8"), "{g:?}");

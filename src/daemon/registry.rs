@@ -119,10 +119,12 @@ pub struct TrackState {
     /// Velocity covariance in the same axes, (m/s)^2.
     #[schema(value_type = Vec<Vec<f64>>)]
     pub vel_cov_enu_m2ps2: [[f64; 3]; 3],
-    /// Windowed normalised innovation squared: the sum of the last updates' NIS (null when
-    /// the tracker keeps none). χ²(`nis_dof`) for a consistent filter (`track::nis`).
+    /// Windowed normalised innovation squared: the sum of the last updates' NIS over their
+    /// measured horizontal components, east and north of position and velocity (null when
+    /// the tracker keeps none). χ²(`nis_dof`) for a consistent filter (`track::nis`; the
+    /// quantised barometric altitude and rate are left out).
     pub nis: Option<f64>,
-    /// Degrees of freedom of `nis`: the measured components in its window.
+    /// Degrees of freedom of `nis`: the measured horizontal components in its window.
     pub nis_dof: Option<u32>,
     /// Predicted positions at the configured horizons (published snapshots only; empty in
     /// `--tracks-out` lines).

@@ -40,6 +40,8 @@ pub fn estimate_from_state(s: &TrackState, cpu_ns: Option<u64>) -> EstimateSampl
         pos_cov_en: Some([[c[0][0], c[0][1]], [c[1][0], c[1][1]]]),
         vel_cov_en: Some([[v[0][0], v[0][1]], [v[1][0], v[1][1]]]),
         cpu_ns,
+        nis: s.nis.zip(s.nis_dof),
+        diverging: s.diverging,
     }
 }
 

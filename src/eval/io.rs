@@ -129,6 +129,15 @@ pub fn parse_tracks(
             pos_cov_en: cov2("pos_cov_enu_m2"),
             vel_cov_en: cov2("vel_cov_enu_m2ps2"),
             cpu_ns: None,
+            nis: v
+                .get("nis")
+                .and_then(serde_json::Value::as_f64)
+                .zip(v.get("nis_dof").and_then(serde_json::Value::as_u64))
+                .and_then(|(n, d)| Some((n, u32::try_from(d).ok()?))),
+            diverging: v
+                .get("diverging")
+                .and_then(serde_json::Value::as_bool)
+                .unwrap_or(false),
         });
     }
     Ok(per)

@@ -67,15 +67,18 @@ pub fn markdown(title: &str, results: &[TrackerResult]) -> String {
     let _ = writeln!(s);
     let _ = writeln!(
         s,
-        "| tracker | runs | label accuracy | mean detection delay s | missed onsets | false switches /100 on CV | ANEES pos (2 dof) | ANEES vel (2 dof) | peak pos err m | CPU/update median ns | p99 ns |"
+        "| tracker | runs | label accuracy | mean detection delay s | missed onsets | false switches /100 on CV | ANEES pos (2 dof) | ANEES vel (2 dof) | windowed NIS in 95 % band % | diverging % | peak pos err m | CPU/update median ns | p99 ns |"
     );
-    let _ = writeln!(s, "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
+    let _ = writeln!(
+        s,
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"
+    );
     for r in results {
         let all = r.scores.estimates.get("all");
         let cpu = r.scores.cpu_percentiles_ns();
         let _ = writeln!(
             s,
-            "| {} | {} | {} | {} | {} | {} | {} | {} | {:.1} | {} | {} |",
+            "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {:.1} | {} | {} |",
             r.tracker,
             r.runs,
             f(r.scores.label_accuracy().map(|a| 100.0 * a), 1) + " %",
@@ -84,6 +87,8 @@ pub fn markdown(title: &str, results: &[TrackerResult]) -> String {
             f(r.scores.false_switches_per_100(), 2),
             f(all.and_then(|a| a.anees_pos()), 2),
             f(all.and_then(|a| a.anees_vel()), 2),
+            f(r.scores.nis_in_band_pct(), 1),
+            f(r.scores.diverging_pct(), 2),
             r.scores.peak_pos_err_m,
             cpu.map_or("-".into(), |c| c.0.to_string()),
             cpu.map_or("-".into(), |c| c.1.to_string()),
@@ -91,7 +96,7 @@ pub fn markdown(title: &str, results: &[TrackerResult]) -> String {
     }
     let _ = writeln!(
         s,
-        "\nANEES: 2 for a consistent filter; the 95 % band of the mean over N runs at one time is chi2(2N)/N, e.g. [{:.2}, {:.2}] for N = 100.",
+        "\nANEES: 2 for a consistent filter; the 95 % band of the mean over N runs at one time is chi2(2N)/N, e.g. [{:.2}, {:.2}] for N = 100. Windowed NIS: the track's published `nis` (its last 20 updates, horizontal components) inside the two-sided 95 % band of chi2(`nis_dof`), about 95 % of the updates for a consistent filter whose innovations are white.",
         chi2_band_95(2.0, 100.0).0,
         chi2_band_95(2.0, 100.0).1
     );

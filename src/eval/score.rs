@@ -40,6 +40,11 @@ pub struct EstimateSample {
     pub vel_cov_en: Option<[[f64; 2]; 2]>,
     /// Wall time the update took, ns (bench runs only).
     pub cpu_ns: Option<u64>,
+    /// The published windowed NIS and its degrees of freedom (`nis`, `nis_dof`), when the
+    /// tracker keeps one.
+    pub nis: Option<(f64, u32)>,
+    /// The published `diverging` flag.
+    pub diverging: bool,
 }
 
 /// A measured position (what the tracker was given), for the raw-measurement RMSE.
@@ -186,6 +191,12 @@ pub struct Scores {
     pub cpu_ns: Vec<u64>,
     /// Largest horizontal position error seen, m.
     pub peak_pos_err_m: f64,
+    /// Estimates that carried a windowed NIS, and those inside its two-sided 95 % χ² band:
+    /// the track's own consistency claim, checked where the truth is known.
+    pub nis_updates: u64,
+    pub nis_in_band: u64,
+    /// Estimates flagged `diverging`.
+    pub diverging_updates: u64,
 }
 
 /// Horizontal (east, north) and vertical offset of a position from the truth, metres, in
@@ -233,6 +244,12 @@ impl Scores {
                 sums.nees_vel_n = 1;
             }
             s.peak_pos_err_m = s.peak_pos_err_m.max(d.norm());
+            if let Some((nis, dof)) = est.nis.filter(|&(_, dof)| dof > 0) {
+                let (lo, hi) = chi2_band_95(f64::from(dof), 1.0);
+                s.nis_updates += 1;
+                s.nis_in_band += u64::from((lo..=hi).contains(&nis));
+            }
+            s.diverging_updates += u64::from(est.diverging);
             for key in [tr.mode.as_str(), "all"] {
                 s.estimates.entry(key.to_string()).or_default().add(&sums);
             }
@@ -306,6 +323,20 @@ impl Scores {
         self.cv_updates += o.cv_updates;
         self.cpu_ns.extend_from_slice(&o.cpu_ns);
         self.peak_pos_err_m = self.peak_pos_err_m.max(o.peak_pos_err_m);
+        self.nis_updates += o.nis_updates;
+        self.nis_in_band += o.nis_in_band;
+        self.diverging_updates += o.diverging_updates;
+    }
+
+    /// Share of the estimates carrying a windowed NIS whose NIS is inside its band, %.
+    pub fn nis_in_band_pct(&self) -> Option<f64> {
+        (self.nis_updates > 0).then(|| 100.0 * self.nis_in_band as f64 / self.nis_updates as f64)
+    }
+
+    /// Share of the estimates flagged `diverging`, %.
+    pub fn diverging_pct(&self) -> Option<f64> {
+        let n = self.estimates.get("all").map_or(0, |e| e.n);
+        (n > 0).then(|| 100.0 * self.diverging_updates as f64 / n as f64)
     }
 
     /// Fraction of estimates whose label equals the true mode.
@@ -402,6 +433,8 @@ mod tests {
             pos_cov_en: Some([[100.0, 0.0], [0.0, 900.0]]),
             vel_cov_en: None,
             cpu_ns: Some(100),
+            nis: Some((2.0, 2)),
+            diverging: true,
         };
         let s = Scores::score_track(&truth, &[est], &[]);
         let all = &s.estimates["all"];
@@ -415,6 +448,9 @@ mod tests {
         // NEES = 30^2 / 900 = 1.
         assert!((all.anees_pos().unwrap() - 1.0).abs() < 1e-3);
         assert_eq!(s.label_accuracy(), Some(1.0));
+        // χ²(2)'s 95 % band is [0.05, 7.38]: 2 is inside; the one estimate is flagged.
+        assert_eq!(s.nis_in_band_pct(), Some(100.0));
+        assert_eq!(s.diverging_pct(), Some(100.0));
     }
 
     #[test]
@@ -446,6 +482,8 @@ mod tests {
             pos_cov_en: None,
             vel_cov_en: None,
             cpu_ns: None,
+            nis: None,
+            diverging: false,
         };
         use FlightMode::*;
         let e: Vec<_> = [

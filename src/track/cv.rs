@@ -427,8 +427,10 @@ impl Tracker for CvKalman {
                 r.fixed_view_mut::<3, 3>(0, 0).copy_from(&pos.cov);
                 r.fixed_view_mut::<3, 3>(3, 3).copy_from(&vel.cov);
                 let inn = update_track(track, m.t_s, &prior, &z, &kalman::blocks6(0, 3), &r)?;
-                self.nis
-                    .push(inn.nis, super::nis::measured_dof(Some(pos), Some(vel)));
+                self.nis.push(
+                    super::nis::horizontal(&inn, &r),
+                    super::nis::horizontal_dof(Some(pos), Some(vel)),
+                );
                 Some((
                     kalman::rows::<3, _>(&inn.residual, 0),
                     kalman::block::<3, 3, _, _>(&inn.s, 0, 0),
@@ -443,8 +445,10 @@ impl Tracker for CvKalman {
                     &kalman::block3(0),
                     &pos.cov,
                 )?;
-                self.nis
-                    .push(inn.nis, super::nis::measured_dof(Some(pos), None));
+                self.nis.push(
+                    super::nis::horizontal(&inn, &pos.cov),
+                    super::nis::horizontal_dof(Some(pos), None),
+                );
                 Some((inn.residual, inn.s))
             }
             (None, Some(vel)) => {
@@ -456,8 +460,10 @@ impl Tracker for CvKalman {
                     &kalman::block3(3),
                     &vel.cov,
                 )?;
-                self.nis
-                    .push(inn.nis, super::nis::measured_dof(None, Some(vel)));
+                self.nis.push(
+                    super::nis::horizontal(&inn, &vel.cov),
+                    super::nis::horizontal_dof(None, Some(vel)),
+                );
                 None
             }
             (None, None) => return Ok(()),

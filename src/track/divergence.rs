@@ -181,13 +181,12 @@ pub enum Observation {
 }
 
 impl Observation {
-    /// Measured components (for the windowed NIS, [`super::nis`]).
-    pub fn measured_dof(&self) -> u8 {
+    /// Measured horizontal components: the degrees of freedom of the windowed NIS
+    /// ([`super::nis::horizontal`]).
+    pub fn horizontal_dof(&self) -> u8 {
         match self {
-            Self::Position(o) | Self::Velocity(o) => super::nis::measured_components(o),
-            Self::Both(p, v) => {
-                super::nis::measured_components(p) + super::nis::measured_components(v)
-            }
+            Self::Position(o) | Self::Velocity(o) => super::nis::horizontal_components(o),
+            Self::Both(p, v) => super::nis::horizontal_dof(Some(p), Some(v)),
         }
     }
 
@@ -207,6 +206,9 @@ impl Observation {
 pub struct Guarded {
     /// NIS of the nominal innovation.
     pub nis: f64,
+    /// NIS of the nominal innovation over its measured horizontal components
+    /// ([`super::nis::horizontal`]): what the track's windowed NIS sums.
+    pub nis_horizontal: f64,
     /// ln N(ε; 0, S) of the nominal innovation.
     pub log_likelihood: f64,
     /// The criterion held (a divergence event).
@@ -384,6 +386,7 @@ fn guarded_update_m<const N: usize, const M: usize>(
     }
     Ok(Guarded {
         nis: inn.nis,
+        nis_horizontal: super::nis::horizontal(&inn, r),
         log_likelihood: inn.log_likelihood(),
         diverged,
         run,

@@ -385,7 +385,7 @@ impl HybridTracker {
                         - p.fixed_view::<3, 3>(3, 3);
                 }
                 self.stats.cv_updates += 1;
-                g.nis
+                g.nis_horizontal
             }
             Branch::Imm { .. } => {
                 self.imm.step(dt_s, obs)?;
@@ -397,7 +397,7 @@ impl HybridTracker {
                 self.imm.nis(best)
             }
         };
-        self.nis.push(nis, obs.measured_dof());
+        self.nis.push(nis, obs.horizontal_dof());
         if self.diverging {
             self.divergence_events = self.divergence_events.saturating_add(1);
         }

@@ -332,7 +332,8 @@ fn embed<const K: usize>(
 struct ModeOutcome {
     /// Consecutive divergence events (paper 000) up to this step.
     run: u32,
-    /// NIS and log-likelihood of the nominal innovation.
+    /// NIS over the measured horizontal components, and the log-likelihood, of the nominal
+    /// innovation.
     nis: f64,
     log_likelihood: f64,
     /// The nominal innovation blocks, for [`super::noise`].
@@ -431,7 +432,7 @@ fn guarded_mode<const K: usize>(
             write(&x, &p);
             Ok(ModeOutcome {
                 run: g.run,
-                nis: g.nis,
+                nis: g.nis_horizontal,
                 log_likelihood: g.log_likelihood,
                 blocks: g.blocks,
                 correction: pred.covariance_block3(g.adapt, VEL)
@@ -681,7 +682,8 @@ impl Imm {
         self.divergence_runs.get(mode.index()).copied().unwrap_or(0)
     }
 
-    /// The NIS of `mode`'s filter at the last step (NaN before one, or when it failed).
+    /// The NIS of `mode`'s filter at the last step over the report's measured horizontal
+    /// components ([`super::nis::horizontal`]; NaN before one, or when it failed).
     pub fn nis(&self, mode: ImmMode) -> f64 {
         self.nis.get(mode.index()).copied().unwrap_or(f64::NAN)
     }
@@ -1357,7 +1359,7 @@ impl Tracker for ImmTracker {
                 self.init.advance(m.t_s);
                 self.nis.push(
                     self.imm.nis(self.imm.most_probable()),
-                    super::nis::measured_dof(m.position.as_ref(), m.velocity.as_ref()),
+                    super::nis::horizontal_dof(m.position.as_ref(), m.velocity.as_ref()),
                 );
                 Ok(())
             }

@@ -84,6 +84,28 @@ impl<const M: usize> Innovation<M> {
         };
         -0.5 * (self.nis + M as f64 * LN_2PI + 2.0 * ln_det_l)
     }
+
+    /// The NIS of the first two components alone, ε₀₁ᵀ S₀₁⁻¹ ε₀₁ with S₀₁ their 2x2 block:
+    /// east and north of a position or a velocity report, what the track's windowed NIS
+    /// sums ([`super::nis::horizontal`]). S's Cholesky factor L is lower triangular, so its
+    /// leading 2x2 block factors S₀₁, and the first two entries of w = L⁻¹ ε, w₀ = ε₀/L₀₀
+    /// and w₁ = (ε₁ − L₁₀ w₀)/L₁₁ with L₁₀ = S₁₀/L₀₀, are that block's whitened innovation:
+    /// the result is w₀² + w₁², from what the update kept (no factorisation, no struct
+    /// grown by a field every report would copy). NaN for M < 2.
+    pub fn nis_leading2(&self) -> f64 {
+        let (Some(&e0), Some(&e1), Some(&s10), Some(&l00), Some(&l11)) = (
+            self.residual.get(0),
+            self.residual.get(1),
+            self.s.get((1, 0)),
+            self.l_diag.get(0),
+            self.l_diag.get(1),
+        ) else {
+            return f64::NAN;
+        };
+        let w0 = e0 / l00;
+        let w1 = (e1 - s10 / l00 * w0) / l11;
+        w0 * w0 + w1 * w1
+    }
 }
 
 /// (A + Aᵀ)/2: removes the asymmetry rounding leaves in a covariance.

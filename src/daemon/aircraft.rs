@@ -287,8 +287,10 @@ impl Aircraft {
         } else {
             None
         };
-        self.tracker
-            .set_accuracy_declared(self.facts.nac_p.is_some());
+        self.tracker.set_accuracy_declared(
+            self.facts.nac_p.is_some(),
+            self.facts.nac_v.is_some_and(|v| v > 0),
+        );
         match self.tracker.update(m) {
             // A report without a position long after the track's last one ends the track
             // (every tracker's `max_gap_s` rule) rather than updating it: no estimate left.

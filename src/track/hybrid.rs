@@ -375,8 +375,7 @@ impl HybridTracker {
                 self.diverging = g.run >= self.params.divergence.confirm;
                 self.cv_divergence_run = g.run;
                 let [pos, vel] = g.blocks;
-                self.noise.position.learn(&pos, &self.params.noise);
-                self.noise.velocity.learn(&vel, &self.params.noise);
+                self.noise.learn(&pos, &vel, &self.params.noise);
                 if matches!(obs, Observation::Position(_)) {
                     // Only a report without a velocity may feed the gate a derived one.
                     // Only the velocity block of Adapt·Φ P Φᵀ + Q − P(k|k) is needed.
@@ -698,8 +697,9 @@ impl Tracker for HybridTracker {
         self.noise = noise;
     }
 
-    fn set_accuracy_declared(&mut self, declared: bool) {
-        self.noise.accuracy_declared = declared;
+    fn set_accuracy_declared(&mut self, position: bool, velocity: bool) {
+        self.noise.accuracy_declared = position;
+        self.noise.velocity_declared = velocity;
     }
 
     fn name(&self) -> &'static str {
@@ -1432,7 +1432,7 @@ mod tests {
         let reps = reports(&truth, Feed::Alternating, &mut rng);
         for declared in [false, true] {
             let mut tracker = HybridTracker::default();
-            tracker.set_accuracy_declared(declared);
+            tracker.set_accuracy_declared(declared, true);
             let (mut in_imm, mut in_cv, mut biased) = (0, 0, 0);
             for m in &reps {
                 tracker.update(m).unwrap();

@@ -1322,8 +1322,9 @@ impl Tracker for ImmTracker {
         self.noise = noise;
     }
 
-    fn set_accuracy_declared(&mut self, declared: bool) {
-        self.noise.accuracy_declared = declared;
+    fn set_accuracy_declared(&mut self, position: bool, velocity: bool) {
+        self.noise.accuracy_declared = position;
+        self.noise.velocity_declared = velocity;
     }
 
     fn name(&self) -> &'static str {
@@ -1353,8 +1354,7 @@ impl Tracker for ImmTracker {
                 self.imm.step(dt_s, &obs)?;
                 if steady {
                     let [pos, vel] = *self.imm.cv_blocks();
-                    self.noise.position.learn(&pos, &self.params.noise);
-                    self.noise.velocity.learn(&vel, &self.params.noise);
+                    self.noise.learn(&pos, &vel, &self.params.noise);
                 }
                 self.init.advance(m.t_s);
                 self.nis.push(

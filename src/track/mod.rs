@@ -403,9 +403,11 @@ pub trait Tracker: Send {
 
     /// Whether the aircraft declares its position accuracy (NACp), so that the position
     /// covariance it reports is that declaration rather than a fall-back on the type code's
-    /// NUCp. The daemon says so before each report. Ignored by default; the hybrid tracker
-    /// bounds the total error it publishes by a declaration ([`noise`]).
-    fn set_accuracy_declared(&mut self, _declared: bool) {}
+    /// NUCp, and its velocity accuracy (NACv or NUCr above 0, rather than NACv 1's bound
+    /// taken for 0). The daemon says so before each report. Ignored by default; the hybrid
+    /// tracker and the IMM bound the total error they publish by a declaration and learn
+    /// an undeclared block's noise with a weaker prior ([`noise`]).
+    fn set_accuracy_declared(&mut self, _position: bool, _velocity: bool) {}
 }
 
 /// The alternative trackers of papers 000, 001 and 003 by name, with default parameters:

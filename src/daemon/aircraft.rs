@@ -8,7 +8,7 @@ use super::registry::{AircraftFacts, PredictionEnu, Published, Registry, Slot, T
 use super::stats::{Counts, Stats};
 use crate::decode::cpr::{CprConfig, CprDecoder, PositionFix};
 use crate::decode::{AltitudeSource, Decoded, Icao, Message, Velocity};
-use crate::track::geo::LocalFrame;
+use crate::track::geo::{LocalFrame, TrigCache};
 use crate::track::{Measurement, Observed, Tracker, UNMEASURED_VARIANCE};
 use nalgebra::{Matrix3, Vector3};
 use std::sync::Arc;
@@ -130,6 +130,9 @@ pub struct Aircraft {
     cpr: CprDecoder,
     tracker: Box<dyn Tracker>,
     frame: Option<LocalFrame>,
+    /// The sines and cosines of a recent position, from which the next ones come by angle
+    /// addition ([`TrigCache`]).
+    trig: TrigCache,
     /// What the aircraft said about itself, and the counts, as published.
     facts: AircraftFacts,
     /// Last height used for a position, m, and whether it was measured.
@@ -163,6 +166,7 @@ impl Aircraft {
             cpr: CprDecoder::new(cfg.cpr),
             tracker: (cfg.tracker)(&cfg.tracker_config),
             frame: None,
+            trig: TrigCache::default(),
             facts: AircraftFacts {
                 last_seen: f64::NEG_INFINITY,
                 ..AircraftFacts::default()
@@ -359,13 +363,14 @@ impl Aircraft {
         let frame = *self
             .frame
             .get_or_insert_with(|| LocalFrame::new(lat, lon, 0.0));
-        let (mut enu, mut rotation) = frame.to_enu_with_rotation(lat, lon, h_m);
+        let (mut enu, mut rotation) =
+            frame.to_enu_with_rotation_near(&mut self.trig, lat, lon, h_m);
         if enu.norm() > MAX_TRACK_RADIUS_M {
             // Too far from the track's plane to continue it: a new track, in a new plane.
             self.reset_track(counts);
             counts.track_resets_jump += 1;
             let frame = *self.frame.insert(LocalFrame::new(lat, lon, 0.0));
-            (enu, rotation) = frame.to_enu_with_rotation(lat, lon, h_m);
+            (enu, rotation) = frame.to_enu_with_rotation_near(&mut self.trig, lat, lon, h_m);
         }
         self.last_rotation = Some(rotation);
         let epu_m = match self.facts.nac_p {

@@ -212,7 +212,12 @@ impl LocalFrame {
         lon_deg: f64,
         h_m: f64,
     ) -> (Vector3<f64>, Matrix3<f64>) {
-        let trig = Trig::of(lat_deg, lon_deg);
+        self.enu_with_rotation_of(&Trig::of(lat_deg, lon_deg), h_m)
+    }
+
+    /// The point whose sines and cosines are `trig`, at height `h_m`, in this frame, and the
+    /// rotation from its local axes to the frame's.
+    fn enu_with_rotation_of(&self, trig: &Trig, h_m: f64) -> (Vector3<f64>, Matrix3<f64>) {
         let enu = self.rotation * (trig.ecef(h_m) - self.origin_ecef);
         let rotation = self.rotation * trig.enu_rotation().transpose();
         (enu, rotation)
@@ -229,10 +234,7 @@ impl LocalFrame {
         lon_deg: f64,
         h_m: f64,
     ) -> (Vector3<f64>, Matrix3<f64>) {
-        let trig = cache.trig(lat_deg, lon_deg);
-        let enu = self.rotation * (trig.ecef(h_m) - self.origin_ecef);
-        let rotation = self.rotation * trig.enu_rotation().transpose();
-        (enu, rotation)
+        self.enu_with_rotation_of(&cache.trig(lat_deg, lon_deg), h_m)
     }
 
     /// Rotation taking a vector expressed in the local ENU axes at (lat, lon) into this

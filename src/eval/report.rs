@@ -96,6 +96,35 @@ pub fn markdown(title: &str, results: &[TrackerResult]) -> String {
     }
     let _ = writeln!(
         s,
+        "\n| tracker | turn onset (CT) s | acceleration onset (CA) s | climb/descent onset (CH) s | CHCA onset s | manoeuvre end (to CV) s |"
+    );
+    let _ = writeln!(s, "|---|---:|---:|---:|---:|---:|");
+    for r in results {
+        let cell = |mode: &str| {
+            let (mean, n, missed) = r.scores.mean_delay_to_s(mode);
+            match (n, missed) {
+                (0, 0) => "-".to_string(),
+                (_, 0) => format!("{} ({n})", f(mean, 2)),
+                _ => format!("{} ({n}, {missed} missed)", f(mean, 2)),
+            }
+        };
+        let _ = writeln!(
+            s,
+            "| {} | {} | {} | {} | {} | {} |",
+            r.tracker,
+            cell("CT"),
+            cell("CA"),
+            cell("CH"),
+            cell("CHCA"),
+            cell("CV"),
+        );
+    }
+    let _ = writeln!(
+        s,
+        "\nDelays: from each change of the true mode to the first estimate with its label, mean over the changes (their number); the label table's mean detection delay is over every onset of a manoeuvre, the first four columns together."
+    );
+    let _ = writeln!(
+        s,
         "\nANEES: 2 for a consistent filter; the 95 % band of the mean over N runs at one time is chi2(2N)/N, e.g. [{:.2}, {:.2}] for N = 100. Windowed NIS: the track's published `nis` (its last 20 updates, horizontal components) inside the two-sided 95 % band of chi2(`nis_dof`), about 95 % of the updates for a consistent filter whose innovations are white.",
         chi2_band_95(2.0, 100.0).0,
         chi2_band_95(2.0, 100.0).1

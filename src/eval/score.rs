@@ -182,6 +182,14 @@ pub struct Scores {
     pub detection_delays_s: Vec<f64>,
     /// Onsets whose label never appeared before the segment ended.
     pub missed_onsets: u64,
+    /// The same delays by the mode the truth changed to, and the ends of manoeuvres (a
+    /// change back to "CV") besides: a turn's onset, a climb's and an acceleration's are
+    /// told apart by data of different quality (a heading against a vertical rate against a
+    /// ground speed), so one mean over all of them says little about any.
+    pub delays_by_mode_s: BTreeMap<String, Vec<f64>>,
+    /// Changes of the true mode (to any mode, CV included) whose label never appeared
+    /// before the segment ended, by that mode.
+    pub missed_by_mode: BTreeMap<String, u64>,
     /// Label switches away from CV while the truth was CV.
     pub false_switches: u64,
     /// Updates while the truth was CV (denominator of the false-switch rate).
@@ -283,18 +291,25 @@ impl Scores {
                 s.raw.entry(key.to_string()).or_default().add(&sums);
             }
         }
-        // Detection delay: from each onset of a manoeuvre (a change to a mode other than CV)
-        // to the first estimate labelled with the new mode, before the segment ends.
+        // Detection delay: from each change of the true mode to the first estimate labelled
+        // with the new mode, before the segment ends. The headline figures count the onsets
+        // of manoeuvres (a change to a mode other than CV); the table by mode has the ends
+        // (back to CV) too.
         let onsets = truth.onsets();
         for (i, &(t0, mode)) in onsets.iter().enumerate() {
+            let end = onsets.get(i + 1).map_or(f64::INFINITY, |&(t1, _)| t1);
+            let found = estimates
+                .iter()
+                .find(|e| e.t >= t0 && e.t < end && e.mode == mode);
+            let key = mode.as_str().to_string();
+            match found {
+                Some(e) => s.delays_by_mode_s.entry(key).or_default().push(e.t - t0),
+                None => *s.missed_by_mode.entry(key).or_default() += 1,
+            }
             if mode == FlightMode::Cv {
                 continue;
             }
-            let end = onsets.get(i + 1).map_or(f64::INFINITY, |&(t1, _)| t1);
-            match estimates
-                .iter()
-                .find(|e| e.t >= t0 && e.t < end && e.mode == mode)
-            {
+            match found {
                 Some(e) => s.detection_delays_s.push(e.t - t0),
                 None => s.missed_onsets += 1,
             }
@@ -319,6 +334,15 @@ impl Scores {
         self.detection_delays_s
             .extend_from_slice(&o.detection_delays_s);
         self.missed_onsets += o.missed_onsets;
+        for (k, v) in &o.delays_by_mode_s {
+            self.delays_by_mode_s
+                .entry(k.clone())
+                .or_default()
+                .extend_from_slice(v);
+        }
+        for (k, n) in &o.missed_by_mode {
+            *self.missed_by_mode.entry(k.clone()).or_default() += n;
+        }
         self.false_switches += o.false_switches;
         self.cv_updates += o.cv_updates;
         self.cpu_ns.extend_from_slice(&o.cpu_ns);
@@ -362,6 +386,18 @@ impl Scores {
     pub fn mean_detection_delay_s(&self) -> Option<f64> {
         let n = self.detection_delays_s.len();
         (n > 0).then(|| self.detection_delays_s.iter().sum::<f64>() / n as f64)
+    }
+
+    /// Mean delay to the label of changes into `mode` ("CV": the ends of manoeuvres), s,
+    /// with the number of such changes labelled and missed.
+    pub fn mean_delay_to_s(&self, mode: &str) -> (Option<f64>, usize, u64) {
+        let d = self
+            .delays_by_mode_s
+            .get(mode)
+            .map_or(&[][..], Vec::as_slice);
+        let missed = self.missed_by_mode.get(mode).copied().unwrap_or(0);
+        let mean = (!d.is_empty()).then(|| d.iter().sum::<f64>() / d.len() as f64);
+        (mean, d.len(), missed)
     }
 
     /// Median and 99th percentile of the per-update CPU time, ns.
@@ -503,6 +539,63 @@ mod tests {
         assert_eq!(s.false_switches, 1);
         assert_eq!(s.cv_updates, 4);
         assert_eq!(s.false_switches_per_100(), Some(25.0));
+    }
+
+    /// Each change of the true mode is timed to its first label, turns apart from climbs
+    /// and ends (back to CV) apart from onsets; a change never labelled is counted missed.
+    #[test]
+    fn delays_by_the_mode_changed_to() {
+        use FlightMode::*;
+        // CV 0-9 s, CT 10-19 s, CV 20-29 s, CH 30-39 s, CV from 40 s.
+        let mode_at = |t: i32| match t {
+            10..=19 => Ct,
+            30..=39 => Ch,
+            _ => Cv,
+        };
+        let truth = TruthTrack::new(
+            (0..=50)
+                .map(|i| sample(f64::from(i), 100.0 * f64::from(i), mode_at(i)))
+                .collect(),
+        );
+        let est = |t: f64, mode| EstimateSample {
+            t,
+            lat: 0.0,
+            lon: 100.0 * t / 111_319.490_793,
+            alt_m: 0.0,
+            ve: 100.0,
+            vn: 0.0,
+            vu: 0.0,
+            mode,
+            pos_cov_en: None,
+            vel_cov_en: None,
+            cpu_ns: None,
+            nis: None,
+            diverging: false,
+        };
+        let e: Vec<_> = [
+            (5.0, Cv),
+            (11.0, Ct), // turn onset: 1 s
+            (21.0, Ct),
+            (23.5, Cv), // turn end: 3.5 s
+            (31.0, Cv),
+            (35.0, Ct), // the climb is never labelled CH: missed
+            (42.0, Cv), // its end: 2 s
+        ]
+        .into_iter()
+        .map(|(t, m)| est(t, m))
+        .collect();
+        let s = Scores::score_track(&truth, &e, &[]);
+        assert_eq!(s.mean_delay_to_s("CT"), (Some(1.0), 1, 0));
+        assert_eq!(s.mean_delay_to_s("CH"), (None, 0, 1));
+        assert_eq!(s.mean_delay_to_s("CV"), (Some(2.75), 2, 0));
+        assert_eq!(s.mean_delay_to_s("CA"), (None, 0, 0));
+        // The headline figures keep to the onsets of manoeuvres.
+        assert_eq!(s.detection_delays_s, vec![1.0]);
+        assert_eq!(s.missed_onsets, 1);
+        let mut merged = s.clone();
+        merged.merge(&s);
+        assert_eq!(merged.mean_delay_to_s("CV"), (Some(2.75), 4, 0));
+        assert_eq!(merged.mean_delay_to_s("CH"), (None, 0, 2));
     }
 
     #[test]

@@ -63,9 +63,15 @@ fn paper002_hybrid_against_kalman_and_imm() {
     eprintln!("{report}; mean detection delay {delay:.2} s");
     assert!(delay <= 2.0, "mean detection delay {delay} s");
     let fs = hy.false_switches_per_100().unwrap();
-    // 0.06 over 100 runs since the gate learns the vertical rate's noise (0.28 before, most
-    // of them false climbs under NACv 2's vertical noise).
-    assert!(fs <= 0.2, "{fs} false switches per 100 straight updates");
+    // 0.38 over 100 runs: the first-report turn test (`GateParams::first_report_turn_sigmas`)
+    // labels a straight report a turn about 0.37 % of the time, for one report, which is
+    // what labelling half of the onsets on their first report costs (0.07 before it; 0.28
+    // before the gate learned the vertical rate's noise). The bound is 1.
+    assert!(fs <= 0.7, "{fs} false switches per 100 straight updates");
+    // Turns alone (every onset here is a turn): 1.45 s over 100 runs with the first-report
+    // test, 1.72 s without.
+    let (turn, _, _) = hy.mean_delay_to_s("CT");
+    assert!(turn.unwrap() <= 1.6, "turn onset {turn:?} s");
     assert!(hy.label_accuracy().unwrap() > 0.95);
     // Consistency: the average position NEES inside the 95 % band of 2 dof over all samples
     // of one run at a time (a wide band: samples within a run are correlated).
@@ -96,15 +102,17 @@ fn departure_and_approach_labels() {
         // acceleration onset test and learned vertical noise).
         let floor = if scenario == "departure" { 0.92 } else { 0.94 };
         assert!(acc >= floor, "{scenario}: label accuracy {acc}");
-        assert!(fs <= 0.2, "{scenario}: {fs} false switches per 100");
+        // 100 runs: 0.27 and 0.32 (the first-report turn test's one-report labels; 0.05
+        // and 0.07 without it).
+        assert!(fs <= 0.6, "{scenario}: {fs} false switches per 100");
         // The windowed NIS in its band: 94.4 % and 93.7 % over 100 runs.
         let nis = s.nis_in_band_pct().unwrap();
         assert!(
             (90.0..=98.0).contains(&nis),
             "{scenario}: NIS in band {nis} %"
         );
-        // Turns are labelled within 1.5 s on average (100 runs: departure 1.46 s at 2 deg/s,
-        // approach 1.10 s at 3 deg/s; 1.50 and 1.07 s on these 10); the accelerations'
+        // Turns are labelled within 1.5 s on average (100 runs: departure 1.24 s at 2 deg/s,
+        // approach 0.92 s at 3 deg/s; 1.46 and 1.10 s without the first-report test); the accelerations'
         // onsets and ends take 5-8 s, at the data's limit (docs/evaluation.md).
         let (turn, _, missed) = s.mean_delay_to_s("CT");
         assert_eq!(missed, 0, "{scenario}");
@@ -330,7 +338,8 @@ fn airliner_turns_are_labelled_within_a_second() {
         by("CV")
     );
     eprintln!("airliner-nacp10: {report}");
-    // 100 runs: turns 0.61 s (200 onsets), descents 1.58 s, the deceleration within the
+    // 100 runs: turns 0.51 s (200 onsets; 0.61 s without the first-report turn test),
+    // descents 1.58 s, the deceleration within the
     // descent 4.98 s (0.3 m/s² against NACv 2's ground speed: the data's own limit,
     // docs/evaluation.md), ends 1.76 s.
     let (turn, turns, missed) = by("CT");

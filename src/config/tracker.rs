@@ -56,6 +56,8 @@ pub struct GateConfig {
     pub onset_reports: Option<usize>,
     pub onset_reference_reports: Option<usize>,
     pub onset_sigmas: Option<f64>,
+    /// 0 disables the first-report turn test.
+    pub first_report_turn_sigmas: Option<f64>,
     pub along_track_accel_mps2: Option<f64>,
     pub accel_onset_reports: Option<usize>,
     pub accel_onset_reference_reports: Option<usize>,
@@ -303,6 +305,10 @@ impl GateConfig {
         )?;
         if let Some(v) = self.onset_sigmas {
             p.onset_sigmas = check(&k("onset_sigmas"), v, 0.0, false, 100.0)?;
+        }
+        if let Some(v) = self.first_report_turn_sigmas {
+            let v = check(&k("first_report_turn_sigmas"), v, 0.0, false, 100.0)?;
+            p.first_report_turn_sigmas = (v > 0.0).then_some(v);
         }
         if let Some(v) = self.trend_window_reports {
             p.trend_window_reports = count(&k("trend_window_reports"), v, 3, cap)?;
@@ -597,6 +603,41 @@ mod tests {
         );
         assert_eq!(g.vrate_noise_window_reports, 0.0);
         assert_eq!(g.longest_window(), 26);
+        // The first-report turn test: on by default at 2.9σ, another k, or 0 for off.
+        let first = |toml: &str| {
+            Config::from_toml_str(toml)
+                .unwrap()
+                .tracker
+                .hybrid_params(false)
+                .unwrap()
+                .gate
+                .first_report_turn_sigmas
+        };
+        assert_eq!(first(""), Some(2.9));
+        assert_eq!(
+            first(
+                "[tracker.gate]
+first_report_turn_sigmas = 3.5
+"
+            ),
+            Some(3.5)
+        );
+        assert_eq!(
+            first(
+                "[tracker.gate]
+first_report_turn_sigmas = 0
+"
+            ),
+            None
+        );
+        assert_eq!(
+            first(
+                "[tracker.gate]
+preset = \"paper002\"
+"
+            ),
+            None
+        );
     }
 
     #[test]
@@ -606,6 +647,10 @@ mod tests {
             ("[tracker.gate]\nturn_rate_deg_s = -1.0\n", "tracker.gate.turn_rate_deg_s"),
             ("[tracker.gate]\nturn_window_reports = 99\n", "tracker.gate.turn_window_reports"),
             ("[tracker.gate]\nrelease_ratio = 0.0\n", "tracker.gate.release_ratio"),
+            (
+                "[tracker.gate]\nfirst_report_turn_sigmas = -2.0\n",
+                "tracker.gate.first_report_turn_sigmas",
+            ),
             ("[tracker.gate]\nbogus = 1.0\n", "bogus"),
             (
                 "[tracker.gate]\naccel_onset_reports = 20\naccel_onset_reference_reports = 20\n",

@@ -489,6 +489,26 @@ mod tests {
         assert_eq!(s.diverging_pct(), Some(100.0));
     }
 
+    /// An estimate at time `t` on [`sample`]'s truth (100 m/s east along the equator), with
+    /// the label `mode`.
+    fn on_the_truth(t: f64, mode: FlightMode) -> EstimateSample {
+        EstimateSample {
+            t,
+            lat: 0.0,
+            lon: 100.0 * t / 111_319.490_793,
+            alt_m: 0.0,
+            ve: 100.0,
+            vn: 0.0,
+            vu: 0.0,
+            mode,
+            pos_cov_en: None,
+            vel_cov_en: None,
+            cpu_ns: None,
+            nis: None,
+            diverging: false,
+        }
+    }
+
     #[test]
     fn detection_delay_and_false_switches() {
         let truth = TruthTrack::new(
@@ -506,21 +526,6 @@ mod tests {
                 })
                 .collect(),
         );
-        let est = |t: f64, mode| EstimateSample {
-            t,
-            lat: 0.0,
-            lon: 100.0 * t / 111_319.490_793,
-            alt_m: 0.0,
-            ve: 100.0,
-            vn: 0.0,
-            vu: 0.0,
-            mode,
-            pos_cov_en: None,
-            vel_cov_en: None,
-            cpu_ns: None,
-            nis: None,
-            diverging: false,
-        };
         use FlightMode::*;
         let e: Vec<_> = [
             (1.0, Cv),
@@ -532,7 +537,7 @@ mod tests {
             (13.0, Ct),
         ]
         .into_iter()
-        .map(|(t, m)| est(t, m))
+        .map(|(t, m)| on_the_truth(t, m))
         .collect();
         let s = Scores::score_track(&truth, &e, &[]);
         assert_eq!(s.detection_delays_s, vec![2.5]);
@@ -557,21 +562,6 @@ mod tests {
                 .map(|i| sample(f64::from(i), 100.0 * f64::from(i), mode_at(i)))
                 .collect(),
         );
-        let est = |t: f64, mode| EstimateSample {
-            t,
-            lat: 0.0,
-            lon: 100.0 * t / 111_319.490_793,
-            alt_m: 0.0,
-            ve: 100.0,
-            vn: 0.0,
-            vu: 0.0,
-            mode,
-            pos_cov_en: None,
-            vel_cov_en: None,
-            cpu_ns: None,
-            nis: None,
-            diverging: false,
-        };
         let e: Vec<_> = [
             (5.0, Cv),
             (11.0, Ct), // turn onset: 1 s
@@ -582,7 +572,7 @@ mod tests {
             (42.0, Cv), // its end: 2 s
         ]
         .into_iter()
-        .map(|(t, m)| est(t, m))
+        .map(|(t, m)| on_the_truth(t, m))
         .collect();
         let s = Scores::score_track(&truth, &e, &[]);
         assert_eq!(s.mean_delay_to_s("CT"), (Some(1.0), 1, 0));

@@ -380,6 +380,15 @@ impl GateReading {
         self.flags.any()
     }
 
+    /// The reading without its label-only flag ([`GateFlags::turn_first_report`]): what the
+    /// tracker's filters act on (which modes the IMM enters with, the turn rate its CT models
+    /// take), so that a first-report label moves no estimate.
+    pub fn tested(&self) -> GateReading {
+        let mut r = *self;
+        r.flags.turn_first_report = false;
+        r
+    }
+
     /// Transversal movement: a turn test holds, in the direction of the turn.
     pub fn lateral(&self) -> Lateral {
         let sign = if self.flags.turn {

@@ -452,7 +452,8 @@ impl HybridTracker {
 
     /// The IMM mode of the gate's label.
     fn entry_mode(&self, reading: &GateReading) -> Option<ImmMode> {
-        let (mode, turn) = reading.label()?;
+        // The tests' label, not the first-report test's: it only labels.
+        let (mode, turn) = reading.tested().label()?;
         Some(match (mode, turn) {
             (FlightMode::Ct, Some(TurnDirection::Left)) => ImmMode::CtLeft,
             (FlightMode::Ct, _) => ImmMode::CtRight,
@@ -524,7 +525,8 @@ impl HybridTracker {
     fn turn_rate(&self, stale: bool, reading: &GateReading) -> f64 {
         let (lo, hi) = self.params.turn_rate_limits_deg_s;
         let default = self.params.imm.models.ct.omega_rad_s.abs();
-        if !self.params.adapt_turn_rate || reading.lateral() == Lateral::Straight || stale {
+        if !self.params.adapt_turn_rate || reading.tested().lateral() == Lateral::Straight || stale
+        {
             return default;
         }
         self.gate
@@ -1058,6 +1060,36 @@ mod tests {
             estimates.push(tracker.estimate().unwrap());
         }
         Run { estimates, to_imm }
+    }
+
+    /// The first-report turn test labels and nothing else: with it and without it the
+    /// hybrid's every estimate is the same to the bit (the IMM opens, enters and takes its
+    /// turn rate on the other tests alone), and only labels differ, on some reports.
+    #[test]
+    fn the_first_report_turn_test_moves_no_estimate() {
+        let mut relabelled = 0;
+        for seed in 0..4 {
+            let mut rng = StdRng::seed_from_u64(300 + seed);
+            let truth = paper_truth(&mut rng);
+            let feed = reports(&truth, Feed::Joint, &mut rng);
+            let with = run_hybrid(HybridParams::default(), &feed);
+            let mut off = HybridParams::default();
+            off.gate.first_report_turn_sigmas = None;
+            let without = run_hybrid(off, &feed);
+            assert_eq!(with.to_imm, without.to_imm, "seed {seed}");
+            for (a, b) in with.estimates.iter().zip(&without.estimates) {
+                assert_eq!(
+                    (a.pos_m, a.vel_mps, a.pos_cov_m2, a.vel_cov_m2ps2),
+                    (b.pos_m, b.vel_mps, b.pos_cov_m2, b.vel_cov_m2ps2),
+                    "seed {seed}, t {}",
+                    a.t_s
+                );
+                assert_eq!(a.mode_probabilities, b.mode_probabilities);
+                relabelled += usize::from(a.mode != b.mode);
+            }
+        }
+        // Its labels come a report early at turn onsets, and now and then on a straight one.
+        assert!(relabelled > 0);
     }
 
     fn run_imm(reports: &[Measurement]) -> Run {

@@ -339,9 +339,8 @@ fn airliner_turns_are_labelled_within_a_second() {
     );
     eprintln!("airliner-nacp10: {report}");
     // 100 runs: turns 0.51 s (200 onsets; 0.61 s without the first-report turn test),
-    // descents 1.58 s, the deceleration within the
-    // descent 4.98 s (0.3 m/s² against NACv 2's ground speed: the data's own limit,
-    // docs/evaluation.md), ends 1.76 s.
+    // descents 1.58 s, the deceleration within the descent 4.98 s (0.3 m/s² against NACv 2's
+    // ground speed: the data's own limit, docs/evaluation.md), ends 1.76 s.
     let (turn, turns, missed) = by("CT");
     assert_eq!((turns, missed), (20, 0), "{report}");
     assert!(turn.unwrap() <= 1.0, "{report}");

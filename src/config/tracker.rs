@@ -615,29 +615,14 @@ mod tests {
         };
         assert_eq!(first(""), Some(2.9));
         assert_eq!(
-            first(
-                "[tracker.gate]
-first_report_turn_sigmas = 3.5
-"
-            ),
+            first("[tracker.gate]\nfirst_report_turn_sigmas = 3.5\n"),
             Some(3.5)
         );
         assert_eq!(
-            first(
-                "[tracker.gate]
-first_report_turn_sigmas = 0
-"
-            ),
+            first("[tracker.gate]\nfirst_report_turn_sigmas = 0\n"),
             None
         );
-        assert_eq!(
-            first(
-                "[tracker.gate]
-preset = \"paper002\"
-"
-            ),
-            None
-        );
+        assert_eq!(first("[tracker.gate]\npreset = \"paper002\"\n"), None);
     }
 
     #[test]

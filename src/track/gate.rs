@@ -567,8 +567,19 @@ impl Run {
 /// A hinge fit found by [`hinge_onset`]: (rate since the onset, its σ, t_ref).
 type HingeFit = (f64, f64, f64);
 
-/// The split m = 1's sums, (n·Σ(h − h̄)(y − ȳ), n·Σ(h − h̄)²) ([`first_report_fires`]).
-type FirstSplit = (f64, f64);
+/// The split m = 1 of [`hinge_onset`]: what the first-report test reads
+/// ([`first_report_fires`]), gathered by the onset test's own pass.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct FirstSplit {
+    /// n·Σ(h − h̄)(y − ȳ) and n·Σ(h − h̄)² of the hinge at the newest report.
+    n_hy: f64,
+    n_hxx: f64,
+    /// The reference's (every report but the newest) k·Σ(t − t̄)(y − ȳ) and k·Σ(t − t̄)²,
+    /// k its count: its own slope is the first over the second.
+    k_ref_ty: f64,
+    k_ref_tt: f64,
+    k_ref: f64,
+}
 
 /// The onset test (module doc) on a series y(t) with per-report variance: for m =
 /// 1..=`max_newest`, the newest m of `all` are taken as the first of a change and the reports
@@ -577,9 +588,7 @@ type FirstSplit = (f64, f64);
 /// (b, its σ, t_ref), over the splits whose reference is steady (its own slope under
 /// `lambda`: the end of a change must not read as the onset of another).
 ///
-/// Also returns the split m = 1 alone, when its reference is steady, as its
-/// (n·Σ(h − h̄)(y − ȳ), n·Σ(h − h̄)²): what the first-report test reads
-/// ([`first_report_fires`]), gathered by the same pass.
+/// Also returns the split m = 1 alone, when its reference is steady ([`FirstSplit`]).
 ///
 /// `ty` gives a report's (t, y) in the shifted coordinates of [`LineSums`], and `totals`
 /// are the sums over every report of `all` in them; t_ref is returned in them too. Each
@@ -649,7 +658,13 @@ fn hinge_onset(
         }
         let n_hy = nf * shy - sh * sum_y;
         if m == 1 {
-            first = Some((n_hy, n_hxx));
+            first = Some(FirstSplit {
+                n_hy,
+                n_hxx,
+                k_ref_ty: k * sty - st * sy,
+                k_ref_tt: k_sxx,
+                k_ref: k,
+            });
         }
         if best.is_none_or(|(hy0, hxx0, _)| n_hy * n_hy * hxx0 > hy0 * hy0 * n_hxx) {
             best = Some((n_hy, n_hxx, t_ref));
@@ -663,14 +678,29 @@ fn hinge_onset(
     (best, first)
 }
 
-/// The first-report test on [`hinge_onset`]'s m = 1 split (n·Σ(h − h̄)(y − ȳ),
-/// n·Σ(h − h̄)²): its rate b = the first over the second above λ and k σ, σ² = Σvar over the
-/// second, compared without a division or a root (both sides squared, the second being
-/// positive). Returns the rate when it fires.
-fn first_report_fires(split: FirstSplit, sum_var: f64, lambda: f64, k: f64) -> Option<f64> {
-    let (n_hy, n_hxx) = split;
-    let a = n_hy.abs();
-    (a > lambda * n_hxx && n_hy * n_hy > k * k * sum_var * n_hxx).then(|| n_hy / n_hxx)
+/// The first-report test on [`hinge_onset`]'s m = 1 split, over `n` reports with variances
+/// summing to `sum_var`: its rate b = n_hy / n_hxx above λ and k σ (σ² = Σvar / n_hxx), and
+/// its reference not drifting (its own slope within [`FIRST_REPORT_MAX_DRIFT_Z`] of its σ,
+/// at the mean variance: σ² = (Σvar / n)·k_ref / k_ref_tt). Compared squared, without a
+/// division or a root (every denominator is positive). Returns the rate when it fires.
+fn first_report_fires(
+    split: &FirstSplit,
+    n: f64,
+    sum_var: f64,
+    lambda: f64,
+    k: f64,
+) -> Option<f64> {
+    let FirstSplit {
+        n_hy,
+        n_hxx,
+        k_ref_ty,
+        k_ref_tt,
+        k_ref,
+    } = *split;
+    let fires = n_hy.abs() > lambda * n_hxx && n_hy * n_hy > k * k * sum_var * n_hxx;
+    // The drift is checked last: few reports get that far.
+    let z2 = FIRST_REPORT_MAX_DRIFT_Z * FIRST_REPORT_MAX_DRIFT_Z;
+    (fires && k_ref_ty * k_ref_ty < z2 * k_ref_tt * (sum_var / n) * k_ref).then(|| n_hy / n_hxx)
 }
 
 /// The largest |slope / σ| of the first-report test's reference: a reference that drifts
@@ -678,28 +708,6 @@ fn first_report_fires(split: FirstSplit, sum_var: f64, lambda: f64, k: f64) -> O
 /// offset from the reference's mean grow with the reference's length, which the test
 /// would read as an onset.
 const FIRST_REPORT_MAX_DRIFT_Z: f64 = 2.0;
-
-/// The slope of every report of `all` but the newest, in units of its own σ (per-report
-/// variance the mean of `totals`' variances): how strongly the reference of the
-/// first-report test drifts. `None` under 3 reference reports or without spread in time.
-fn reference_drift_z(
-    all: &[Sample],
-    totals: &LineSums,
-    ty: impl Fn(&Sample) -> (f64, f64),
-) -> Option<f64> {
-    let (t, y) = ty(all.last()?);
-    let mean_var = totals.sv / totals.n;
-    let mut reference = *totals;
-    reference.n -= 1.0;
-    reference.st -= t;
-    reference.stt -= t * t;
-    reference.sy -= y;
-    reference.sty -= t * y;
-    reference.sv = mean_var * reference.n;
-    let (slope, sigma) = reference.slope()?;
-    let z = slope / sigma;
-    z.is_finite().then_some(z)
-}
 
 /// The noise variance of a measured series, learned from the differences of successive
 /// reports (von Neumann et al. 1941, "Distribution of the ratio of the mean square successive
@@ -1062,17 +1070,14 @@ impl Gate {
                     onset_s = Some(t_ref + t0);
                 }
                 // The first-report test: the newest report's hinge alone, labelled only when
-                // its reference does not drift (checked last: it rarely gets that far).
+                // its reference does not drift.
                 if let (false, Some(k), Some(split)) =
                     (r.flags.turn_onset, p.first_report_turn_sigmas, first)
                 {
-                    if let Some(rate) = first_report_fires(split, turn_onset.sums.sv, lambda, k) {
-                        if reference_drift_z(all, &turn_onset.sums, heading_ty)
-                            .is_some_and(|z| z.abs() < FIRST_REPORT_MAX_DRIFT_Z)
-                        {
-                            r.flags.turn_first_report = true;
-                            r.onset_turn_rate_rad_s = Some(rate);
-                        }
+                    let sums = &turn_onset.sums;
+                    if let Some(rate) = first_report_fires(&split, sums.n, sums.sv, lambda, k) {
+                        r.flags.turn_first_report = true;
+                        r.onset_turn_rate_rad_s = Some(rate);
                     }
                 }
             }
@@ -2251,7 +2256,7 @@ mod tests {
             // The m = 1 split's sums give its own fit (the first-report test's).
             let plain_first = hinge_reference(&points, 1, 0.3);
             match (first, plain_first) {
-                (Some((n_hy, n_hxx)), Some((b, sigma, _))) => {
+                (Some(FirstSplit { n_hy, n_hxx, .. }), Some((b, sigma, _))) => {
                     let sum_var: f64 = points.iter().map(|q| q.2).sum();
                     let (fb, fs) = (n_hy / n_hxx, (sum_var / n_hxx).sqrt());
                     assert!((fb - b).abs() <= 1e-9 * fb.abs().max(b.abs()).max(1.0), "{fb} vs {b}");

@@ -58,6 +58,8 @@ pub struct GateConfig {
     pub onset_sigmas: Option<f64>,
     /// 0 disables the first-report turn test.
     pub first_report_turn_sigmas: Option<f64>,
+    /// 0 disables the turn's end test.
+    pub turn_end_sigmas: Option<f64>,
     pub along_track_accel_mps2: Option<f64>,
     pub accel_onset_reports: Option<usize>,
     pub accel_onset_reference_reports: Option<usize>,
@@ -309,6 +311,10 @@ impl GateConfig {
         if let Some(v) = self.first_report_turn_sigmas {
             let v = check(&k("first_report_turn_sigmas"), v, 0.0, false, 100.0)?;
             p.first_report_turn_sigmas = (v > 0.0).then_some(v);
+        }
+        if let Some(v) = self.turn_end_sigmas {
+            let v = check(&k("turn_end_sigmas"), v, 0.0, false, 100.0)?;
+            p.turn_end_sigmas = (v > 0.0).then_some(v);
         }
         if let Some(v) = self.trend_window_reports {
             p.trend_window_reports = count(&k("trend_window_reports"), v, 3, cap)?;
@@ -623,6 +629,20 @@ mod tests {
             None
         );
         assert_eq!(first("[tracker.gate]\npreset = \"paper002\"\n"), None);
+        // The turn's end test: on by default at 3.5σ, another k, or 0 for off.
+        let end = |toml: &str| {
+            Config::from_toml_str(toml)
+                .unwrap()
+                .tracker
+                .hybrid_params(false)
+                .unwrap()
+                .gate
+                .turn_end_sigmas
+        };
+        assert_eq!(end(""), Some(3.5));
+        assert_eq!(end("[tracker.gate]\nturn_end_sigmas = 3\n"), Some(3.0));
+        assert_eq!(end("[tracker.gate]\nturn_end_sigmas = 0\n"), None);
+        assert_eq!(end("[tracker.gate]\npreset = \"paper002\"\n"), None);
     }
 
     #[test]
@@ -635,6 +655,10 @@ mod tests {
             (
                 "[tracker.gate]\nfirst_report_turn_sigmas = -2.0\n",
                 "tracker.gate.first_report_turn_sigmas",
+            ),
+            (
+                "[tracker.gate]\nturn_end_sigmas = -1.0\n",
+                "tracker.gate.turn_end_sigmas",
             ),
             ("[tracker.gate]\nbogus = 1.0\n", "bogus"),
             (

@@ -46,6 +46,22 @@
 //! 2.5 % of it labelled turning without the guard, as without the test with it). 100 runs
 //! of paper 002: onset 1.72 → 1.45 s, false switches 0.07 → 0.38 per 100 straight updates.
 //!
+//! A turn's END waits too: the turn-rate test holds the turn until its five-report slope
+//! falls under its release thresholds, which the reports after the end only bring about as
+//! the window slides past it (3.4 s at paper 002's 3°/s and one report a second). So while a
+//! turn is held, an end test ([`GateParams::turn_end_sigmas`], 3.5σ) fits the reports since
+//! the turn began as the turn's line with a hinge, a + b·t + c·max(0, t − t_ref), for the
+//! newest m = 1..=8 reports after t_ref ([`hinge_end`]): the turn ends when its rate b is a
+//! turn, the change c is against it and significant (k σ), and the rate since, b + c, is
+//! consistent with one under λ. The line is known from every report since the turn began,
+//! so two reports past the end tell it. Like the first-report test it only labels (the turn
+//! tests still hold, and the tracker's IMM with them, until they release: no estimate
+//! moves). 100 runs of paper 002: turn ends labelled after 1.77 s instead of 3.43 s, labels
+//! right 98.4 → 98.7 %, 0.4 reports a run inside the turns labelled straight too early.
+//! (The same test on the ground speed, to end an acceleration's label, gained nothing: at
+//! NACv 2 a 0.4 m/s² acceleration's end takes as long to tell from noise as its onset, and
+//! its false ends cost what its early ends gained; docs/evaluation.md.)
+//!
 //! The along-track test waits the same way, and longer: over 24 reports the straight
 //! ones dilute a 0.4 m/s² acceleration's slope for most of the window. So the same hinge
 //! fit runs on the ground speed ([`GateParams::accel_onset_reports`]: m = 1..=12 newest
@@ -94,6 +110,12 @@ use super::{
 /// 1.49 s, 2.8 gave 1.41 s and 0.47.
 pub const FIRST_REPORT_TURN_SIGMAS: f64 = 2.9;
 
+/// k of the turn's end test by default ([`GateParams::turn_end_sigmas`]): 3.5σ. Measured,
+/// 100 runs (docs/evaluation.md): paper 002's turn ends labelled after 1.77 s instead of
+/// 3.43 s, with 0.4 reports a run inside its turns labelled straight too early; 3.0σ gave
+/// 1.58 s and five times as many, 4.0σ 1.99 s.
+pub const TURN_END_SIGMAS: f64 = 3.5;
+
 /// Most reports a window may span.
 pub const GATE_CAPACITY: usize = 32;
 
@@ -139,6 +161,10 @@ pub struct GateParams {
     /// without opening the IMM; the next report confirms it (the onset or turn-rate test
     /// fires) or the label goes.
     pub first_report_turn_sigmas: Option<f64>,
+    /// k of the turn's end test (module doc), `None` to disable it: while a turn is held,
+    /// the newest reports leaving the turn's own line (its rate changed by more than k σ,
+    /// to a rate under the threshold) end its label, without closing the IMM.
+    pub turn_end_sigmas: Option<f64>,
     /// |Along-track acceleration| threshold, m/s² (least-squares slope of the ground speed).
     pub along_track_accel_mps2: Option<f64>,
     /// Acceleration onset test (module doc): at most this many newest reports are tried as
@@ -211,6 +237,7 @@ impl GateParams {
             onset_reference_reports: 8,
             onset_sigmas: 4.0,
             first_report_turn_sigmas: None,
+            turn_end_sigmas: None,
             along_track_accel_mps2: None,
             accel_onset_reports: 0,
             accel_onset_reference_reports: 12,
@@ -253,6 +280,7 @@ impl Default for GateParams {
             onset_reference_reports: 8,
             onset_sigmas: 4.0,
             first_report_turn_sigmas: Some(FIRST_REPORT_TURN_SIGMAS),
+            turn_end_sigmas: Some(TURN_END_SIGMAS),
             along_track_accel_mps2: Some(0.3),
             accel_onset_reports: 12,
             accel_onset_reference_reports: 12,
@@ -313,6 +341,10 @@ pub struct GateFlags {
     /// ([`GateParams::first_report_turn_sigmas`]): a turn label, not a manoeuvre (not in
     /// [`GateFlags::any`]).
     pub turn_first_report: bool,
+    /// The held turn has ended: the newest reports leave its line for a rate under the
+    /// threshold ([`GateParams::turn_end_sigmas`]). A label, not a manoeuvre's end: the turn
+    /// tests still hold (and keep the IMM) until they release.
+    pub turn_end: bool,
     /// Along-track acceleration.
     pub along_track: bool,
     /// Acceleration onset: the newest reports leave a steady reference speed at a rate.
@@ -386,12 +418,15 @@ impl GateReading {
     pub fn tested(&self) -> GateReading {
         let mut r = *self;
         r.flags.turn_first_report = false;
+        r.flags.turn_end = false;
         r
     }
 
     /// Transversal movement: a turn test holds, in the direction of the turn.
     pub fn lateral(&self) -> Lateral {
-        let sign = if self.flags.turn {
+        let sign = if self.flags.turn_end {
+            None
+        } else if self.flags.turn {
             self.turn_rate_rad_s
         } else if self.flags.turn_onset || self.flags.turn_first_report {
             self.onset_turn_rate_rad_s
@@ -702,6 +737,96 @@ fn first_report_fires(
     let z2 = FIRST_REPORT_MAX_DRIFT_Z * FIRST_REPORT_MAX_DRIFT_Z;
     (fires && k_ref_ty * k_ref_ty < z2 * k_ref_tt * (sum_var / n) * k_ref).then(|| n_hy / n_hxx)
 }
+
+/// The end test (module doc) on a series y(t) (per-report variance) that holds a
+/// manoeuvre: for m = 1..=`max_newest`, the newest m of `points` are taken as the first
+/// after its end and the reports before them (at least [`END_MIN_REFERENCE`]) as the
+/// manoeuvre; y is fitted as a + b·t + c·max(0, t − t_ref) (t_ref the last reference
+/// report) by least squares, b the manoeuvre's rate and b + c the rate since. The end
+/// fires for a split whose reference is a manoeuvre (|b| > λ), whose change is against it
+/// and significant (c·b < 0, |c| > k σ_c), and whose rate since is consistent with one
+/// under the threshold (|b + c| < λ + 2 σ of b + c). Returns the rate since of the most
+/// significant such split.
+///
+/// Why a line for the reference: at a turn's end the turn-rate test's five-report slope
+/// falls off only as the window slides past the end (3.4 s at paper 002's 3°/s and one
+/// report a second), where the turn's own line, known from the reports since it began,
+/// tells the newest reports off it after two reports. Every sum is in the shifted
+/// coordinates of [`LineSums`]; with n·S the centred sums times n, the 2×2 system of
+/// (b, c) has determinant D = n·Stt n·Shh − (n·Sth)², c = (n·Stt n·Shy − n·Sth n·Sty) / D
+/// and var c = Σvar · n·Stt / D (Σvar/n the per-report variance), var(b + c) =
+/// Σvar · (n·Stt + n·Shh − 2 n·Sth) / D.
+fn hinge_end(
+    points: impl DoubleEndedIterator<Item = (f64, f64, f64)> + Clone,
+    max_newest: usize,
+    lambda: f64,
+    k: f64,
+) -> Option<f64> {
+    let mut totals = LineSums::default();
+    for (t, y, v) in points.clone() {
+        totals.add(t, y, v);
+    }
+    let LineSums {
+        n,
+        st,
+        stt,
+        sy,
+        sty,
+        sv,
+    } = totals;
+    let n_tt = n * stt - st * st;
+    let n_ty = n * sty - st * sy;
+    // The newest m's (Σt, Σt², Σy, Σty), newest first; the hinge is at the report before.
+    let (mut nt, mut ntt, mut ny, mut nty) = (0.0, 0.0, 0.0, 0.0);
+    let mut newest_first = points.rev();
+    let mut best: Option<(f64, f64)> = None;
+    for m in 1..=max_newest {
+        if n < (m + END_MIN_REFERENCE) as f64 {
+            break;
+        }
+        let (t, y, _) = newest_first.next()?;
+        nt += t;
+        ntt += t * t;
+        ny += y;
+        nty += t * y;
+        // The peek is the last reference report: t_ref.
+        let (t_ref, _, _) = newest_first.clone().next()?;
+        let mf = m as f64;
+        let sh = nt - mf * t_ref;
+        let shh = ntt - 2.0 * t_ref * nt + mf * t_ref * t_ref;
+        let sth = ntt - t_ref * nt;
+        let shy = nty - t_ref * ny;
+        let n_hh = n * shh - sh * sh;
+        let n_th = n * sth - st * sh;
+        let n_hy = n * shy - sh * sy;
+        let d = n_tt * n_hh - n_th * n_th;
+        if d.is_nan() || d <= 0.0 {
+            continue;
+        }
+        let c = (n_tt * n_hy - n_th * n_ty) / d;
+        let b = (n_hh * n_ty - n_th * n_hy) / d;
+        let var_c = sv * n_tt / d;
+        let var_since = sv * (n_tt + n_hh - 2.0 * n_th) / d;
+        let since = b + c;
+        let z2 = c * c / var_c;
+        let ends = b.abs() > lambda
+            && c * b < 0.0
+            && z2 > k * k
+            && since.abs() < lambda + 2.0 * var_since.max(0.0).sqrt();
+        if ends && since.is_finite() && best.is_none_or(|(z0, _)| z2 > z0) {
+            best = Some((z2, since));
+        }
+    }
+    best.map(|(_, since)| since)
+}
+
+/// Fewest reports the end test ([`hinge_end`]) takes as the manoeuvre's line.
+const END_MIN_REFERENCE: usize = 4;
+
+/// Most reports the turn's end test tries as the first after the end: the turn-rate test
+/// (five reports) releases within about as many after a turn's end, and the end label must
+/// cover the reports until it does.
+const END_TURN_REPORTS: usize = 8;
 
 /// The largest |slope / σ| of the first-report test's reference: a reference that drifts
 /// (a gentle turn under λ, a heading wandering with the wind) makes the newest report's
@@ -1080,6 +1205,29 @@ impl Gate {
                         r.onset_turn_rate_rad_s = Some(rate);
                     }
                 }
+            }
+        }
+        // The turn's end (a label): the reports since the turn began (at most the trend
+        // window's, every one measured and fast enough) against the turn's own line.
+        if let (true, Some(start), Some(k), Some(lambda)) = (
+            r.flags.turn,
+            self.turn_start_s,
+            p.turn_end_sigmas,
+            lambda_turn,
+        ) {
+            let since = newest_of(trend_n);
+            let since = since
+                .get(since.partition_point(|s| s.t_s <= start)..)
+                .unwrap_or(&[]);
+            if since
+                .iter()
+                .all(|s| s.measured && s.speed_mps >= p.min_speed_mps)
+            {
+                let points = since.iter().map(|s| {
+                    let (t, y) = heading_ty(s);
+                    (t, y, s.heading_var())
+                });
+                r.flags.turn_end = hinge_end(points, END_TURN_REPORTS, lambda, k).is_some();
             }
         }
         // When the current turn began: the onset's reference report, or for a turn the
@@ -1466,6 +1614,125 @@ mod tests {
         eprintln!("onsets labelled on their first report: {with:.3} with the first-report test, {without:.3} without");
         assert!((0.38..=0.62).contains(&with), "{with}");
         assert!(without < 0.3 && with - without > 0.2, "{with} vs {without}");
+    }
+
+    /// The end of a paper 002 turn (70.7 m/s, 3°/s, one report a second, 1° of heading noise,
+    /// at a random phase): (delay from the end to the first report labelled straight, whether
+    /// the turn test still held there, reports inside the steady turn labelled straight,
+    /// reports inside it).
+    fn turn_end_timing(params: GateParams, seed: u64) -> (Option<f64>, bool, usize, usize) {
+        let (onset_s, end_s, sigma): (f64, f64, f64) = (30.0, 90.0, 3.0 / R95_2D);
+        let mut rng = StdRng::seed_from_u64(seed);
+        let rate = if seed % 2 == 0 { 3.0 } else { -3.0 };
+        let phase = rand::Rng::gen_range(&mut rng, 0.0..1.0);
+        let mut gate = Gate::new(params);
+        let (mut delay, mut held, mut early, mut inside) = (None, false, 0, 0);
+        let mut t: f64 = phase;
+        while t < end_s + 15.0 {
+            let heading = 30.0 + rate * (t.clamp(onset_s, end_s) - onset_s);
+            let r = *gate.push(
+                t,
+                &report(heading_speed(heading, 70.7, 0.0), sigma, &mut rng),
+                true,
+            );
+            if t >= onset_s + 10.0 && t < end_s {
+                inside += 1;
+                early += usize::from(r.lateral() == Lateral::Straight);
+            }
+            if t >= end_s && delay.is_none() && r.lateral() == Lateral::Straight {
+                delay = Some(t - end_s);
+                held = r.flags.turn;
+            }
+            t += 1.0;
+        }
+        (delay, held, early, inside)
+    }
+
+    #[test]
+    fn turn_end_test_labels_the_end_sooner_without_ending_steady_turns() {
+        let timing = |params: GateParams| {
+            let (mut sum, mut n, mut held, mut early, mut inside) = (0.0, 0, 0, 0, 0);
+            for seed in 0..400_u64 {
+                let (delay, was_held, e, i) = turn_end_timing(params, 5000 + seed);
+                if let Some(d) = delay {
+                    sum += d;
+                    n += 1;
+                    held += usize::from(was_held);
+                }
+                early += e;
+                inside += i;
+            }
+            assert_eq!(n, 400, "every end is labelled");
+            (sum / 400.0, held, early as f64 / inside as f64)
+        };
+        let (with, held, early_with) = timing(GateParams::default());
+        let (without, _, early_without) = timing(GateParams {
+            turn_end_sigmas: None,
+            ..GateParams::default()
+        });
+        eprintln!(
+            "turn end labelled after {with:.2} s with the end test ({held} of 400 while the \
+             turn test still held; {:.3} % of steady-turn reports straight), {without:.2} s \
+             without ({:.3} %)",
+            100.0 * early_with,
+            100.0 * early_without
+        );
+        assert!(with <= 2.0 && without >= 3.0, "{with} vs {without}");
+        // It labels: the turn test (and the tracker's IMM) still holds where it ends most
+        // turns.
+        assert!(held >= 200, "{held}");
+        assert!(early_with <= 0.005, "{early_with}");
+    }
+
+    /// [`hinge_end`]'s rate since the end is the plain least-squares fit of
+    /// a + b·t + c·max(0, t − t_ref) (its b + c), for the split it picks.
+    #[test]
+    fn hinge_end_reads_the_plain_three_parameter_fit() {
+        let mut rng = StdRng::seed_from_u64(17);
+        let noise = Normal::new(0.0, 0.3).unwrap();
+        let mut checked = 0;
+        for case in 0..300 {
+            let n = rng.gen_range(6..=20_usize);
+            let m_true = rng.gen_range(1..=4_usize).min(n - 4);
+            let rate = rng.gen_range(0.5..3.0) * if case % 2 == 0 { 1.0 } else { -1.0 };
+            let mut t: f64 = -rng.gen_range(0.0..1.0);
+            let mut pts = Vec::new();
+            for _ in 0..n {
+                pts.push(t);
+                t -= rng.gen_range(0.4..1.2);
+            }
+            pts.reverse();
+            let t_end = pts[n - 1 - m_true];
+            let points: Vec<(f64, f64, f64)> = pts
+                .iter()
+                .map(|&t| (t, rate * t.min(t_end) + noise.sample(&mut rng), 0.09))
+                .collect();
+            let Some(since) = hinge_end(points.iter().copied(), 8, 0.3, 3.5) else {
+                continue;
+            };
+            // Every split's plain fit; the returned rate is one of them.
+            let fits: Vec<f64> = (1..=8_usize)
+                .filter(|&m| n >= m + END_MIN_REFERENCE)
+                .map(|m| {
+                    let t_ref = points[n - 1 - m].0;
+                    let a = nalgebra::DMatrix::from_fn(n, 3, |i, j| match j {
+                        0 => 1.0,
+                        1 => points[i].0,
+                        _ => (points[i].0 - t_ref).max(0.0),
+                    });
+                    let y = nalgebra::DVector::from_fn(n, |i, _| points[i].1);
+                    let ata = a.transpose() * &a;
+                    let x = ata.cholesky().unwrap().solve(&(a.transpose() * y));
+                    x[1] + x[2]
+                })
+                .collect();
+            assert!(
+                fits.iter().any(|f| (f - since).abs() < 1e-9),
+                "case {case}: {since} not in {fits:?}"
+            );
+            checked += 1;
+        }
+        assert!(checked > 100, "{checked}");
     }
 
     /// The first-report test labels; it is no manoeuvre for the tracker (which opens its
@@ -2036,7 +2303,41 @@ mod tests {
     /// [`Gate::evaluate`] did before it gathered every window in one pass: the reading that
     /// follows `old` on the gate's current samples (the paper's tests aside: they read
     /// first and last samples only, and are not part of the pass).
-    fn reading_reference(gate: &Gate, old: GateFlags) -> GateReading {
+    /// [`hinge_end`] by a plain least-squares solve per split (Cholesky of AᵀA), in
+    /// coordinates centred on the newest report.
+    fn hinge_end_reference(pts: &[(f64, f64, f64)], lambda: f64, k: f64) -> Option<f64> {
+        let n = pts.len();
+        let &(t0, y0, _) = pts.last()?;
+        let mean_var = pts.iter().map(|q| q.2).sum::<f64>() / n as f64;
+        let mut best: Option<(f64, f64)> = None;
+        for m in (1..=END_TURN_REPORTS).filter(|&m| n >= m + END_MIN_REFERENCE) {
+            let t_ref = pts[n - 1 - m].0 - t0;
+            let a = nalgebra::DMatrix::from_fn(n, 3, |i, j| match j {
+                0 => 1.0,
+                1 => pts[i].0 - t0,
+                _ => (pts[i].0 - t0 - t_ref).max(0.0),
+            });
+            let y = nalgebra::DVector::from_fn(n, |i, _| pts[i].1 - y0);
+            let Some(chol) = (a.transpose() * &a).cholesky() else {
+                continue;
+            };
+            let x = chol.solve(&(a.transpose() * y));
+            let cov = chol.inverse() * mean_var;
+            let (b, c) = (x[1], x[2]);
+            let var_since = cov[(1, 1)] + cov[(2, 2)] + 2.0 * cov[(1, 2)];
+            let z2 = c * c / cov[(2, 2)];
+            let ends = b.abs() > lambda
+                && c * b < 0.0
+                && z2 > k * k
+                && (b + c).abs() < lambda + 2.0 * var_since.max(0.0).sqrt();
+            if ends && best.is_none_or(|(z0, _)| z2 > z0) {
+                best = Some((z2, b + c));
+            }
+        }
+        best.map(|(_, since)| since)
+    }
+
+    fn reading_reference(gate: &Gate, old: GateFlags, start: Option<f64>) -> GateReading {
         let p = *gate.params;
         let mut r = GateReading::default();
         let heading = |w: &[Sample]| -> Option<(f64, f64)> {
@@ -2053,6 +2354,26 @@ mod tests {
         if let Some((slope, sigma)) = heading(gate.recent(p.turn_window_reports)) {
             r.turn_rate_rad_s = Some(slope);
             r.flags.turn = fires(slope, sigma, lambda_turn, old.turn || old.turn_onset, &p);
+        }
+        if let (true, Some(start), Some(k), Some(lambda)) =
+            (r.flags.turn, start, p.turn_end_sigmas, lambda_turn)
+        {
+            let since: Vec<_> = gate
+                .recent(p.trend_window_reports)
+                .iter()
+                .filter(|s| s.t_s > start)
+                .copied()
+                .collect();
+            if since
+                .iter()
+                .all(|s| s.measured && s.speed_mps >= p.min_speed_mps)
+            {
+                let pts: Vec<_> = since
+                    .iter()
+                    .map(|s| (s.t_s, s.heading_rad, s.heading_var()))
+                    .collect();
+                r.flags.turn_end = hinge_end_reference(&pts, lambda, k).is_some();
+            }
         }
         if let (false, Some(lambda)) = (r.flags.turn, lambda_turn) {
             let all = gate.recent(p.onset_reference_reports + p.onset_reports);
@@ -2152,7 +2473,7 @@ mod tests {
             vertical_window_reports: 3,
             ..GateParams::default()
         };
-        let mut fired = [0usize; 5];
+        let mut fired = [0usize; 6];
         for (case, params) in [GateParams::default(), odd].into_iter().enumerate() {
             for seed in 0..40u64 {
                 let mut rng = StdRng::seed_from_u64(1000 * case as u64 + seed);
@@ -2179,9 +2500,9 @@ mod tests {
                     speed = (speed + accel * dt).clamp(3.0, 260.0);
                     let measured = rng.gen_range(0..8) != 0;
                     let v = report(heading_speed(heading_deg, speed, vu), 0.8, &mut rng);
-                    let old = gate.reading().flags;
+                    let (old, start) = (gate.reading().flags, gate.turn_start_s);
                     let got = *gate.push(t, &v, measured);
-                    let want = reading_reference(&gate, old);
+                    let want = reading_reference(&gate, old, start);
                     let close = |a: Option<f64>, b: Option<f64>| match (a, b) {
                         (None, None) => true,
                         (Some(a), Some(b)) => {
@@ -2211,14 +2532,16 @@ mod tests {
                         got.flags.along_track,
                         got.flags.accel_onset,
                         got.flags.vertical,
+                        got.flags.turn_end,
                     ]) {
                         *n += usize::from(f);
                     }
                 }
             }
         }
-        // Every test fired (the onset tests on fewer reports: they hold only until the
-        // turn or trend test takes over), so the comparison covered both sides of each.
+        // Every test fired (the onset and end tests on fewer reports: they hold only until
+        // the turn or trend test takes over, or releases), so the comparison covered both
+        // sides of each.
         assert!(fired.iter().all(|&n| n > 50), "{fired:?}");
     }
 

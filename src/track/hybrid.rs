@@ -1062,34 +1062,42 @@ mod tests {
         Run { estimates, to_imm }
     }
 
-    /// The first-report turn test labels and nothing else: with it and without it the
-    /// hybrid's every estimate is the same to the bit (the IMM opens, enters and takes its
-    /// turn rate on the other tests alone), and only labels differ, on some reports.
+    /// The label-only tests (the first-report turn test, the turn's end test) label and
+    /// nothing else: with each and without it the hybrid's every estimate is the same to the
+    /// bit (the IMM opens, enters, takes its turn rate and closes on the other tests alone),
+    /// and only labels differ, on some reports.
     #[test]
-    fn the_first_report_turn_test_moves_no_estimate() {
-        let mut relabelled = 0;
-        for seed in 0..4 {
-            let mut rng = StdRng::seed_from_u64(300 + seed);
-            let truth = paper_truth(&mut rng);
-            let feed = reports(&truth, Feed::Joint, &mut rng);
-            let with = run_hybrid(HybridParams::default(), &feed);
-            let mut off = HybridParams::default();
-            off.gate.first_report_turn_sigmas = None;
-            let without = run_hybrid(off, &feed);
-            assert_eq!(with.to_imm, without.to_imm, "seed {seed}");
-            for (a, b) in with.estimates.iter().zip(&without.estimates) {
-                assert_eq!(
-                    (a.pos_m, a.vel_mps, a.pos_cov_m2, a.vel_cov_m2ps2),
-                    (b.pos_m, b.vel_mps, b.pos_cov_m2, b.vel_cov_m2ps2),
-                    "seed {seed}, t {}",
-                    a.t_s
-                );
-                assert_eq!(a.mode_probabilities, b.mode_probabilities);
-                relabelled += usize::from(a.mode != b.mode);
+    fn the_label_only_tests_move_no_estimate() {
+        let switches: [fn(&mut GateParams); 2] = [
+            |g| g.first_report_turn_sigmas = None,
+            |g| g.turn_end_sigmas = None,
+        ];
+        for (test, switch_off) in switches.iter().enumerate() {
+            let mut relabelled = 0;
+            for seed in 0..4 {
+                let mut rng = StdRng::seed_from_u64(300 + seed);
+                let truth = paper_truth(&mut rng);
+                let feed = reports(&truth, Feed::Joint, &mut rng);
+                let with = run_hybrid(HybridParams::default(), &feed);
+                let mut off = HybridParams::default();
+                switch_off(&mut off.gate);
+                let without = run_hybrid(off, &feed);
+                assert_eq!(with.to_imm, without.to_imm, "test {test}, seed {seed}");
+                for (a, b) in with.estimates.iter().zip(&without.estimates) {
+                    assert_eq!(
+                        (a.pos_m, a.vel_mps, a.pos_cov_m2, a.vel_cov_m2ps2),
+                        (b.pos_m, b.vel_mps, b.pos_cov_m2, b.vel_cov_m2ps2),
+                        "test {test}, seed {seed}, t {}",
+                        a.t_s
+                    );
+                    assert_eq!(a.mode_probabilities, b.mode_probabilities);
+                    relabelled += usize::from(a.mode != b.mode);
+                }
             }
+            // Their labels come a report or more early at turn onsets and ends, and now
+            // and then on a straight report.
+            assert!(relabelled > 0, "test {test}");
         }
-        // Its labels come a report early at turn onsets, and now and then on a straight one.
-        assert!(relabelled > 0);
     }
 
     fn run_imm(reports: &[Measurement]) -> Run {

@@ -51,13 +51,13 @@
 //! the window slides past it (3.4 s at paper 002's 3°/s and one report a second). So while a
 //! turn is held, an end test ([`GateParams::turn_end_sigmas`], 3.5σ) fits the reports since
 //! the turn began as the turn's line with a hinge, a + b·t + c·max(0, t − t_ref), for the
-//! newest m = 1..=8 reports after t_ref ([`hinge_end`]): the turn ends when its rate b is a
+//! newest m = 2..=8 reports after t_ref ([`hinge_end`]): the turn ends when its rate b is a
 //! turn, the change c is against it and significant (k σ), and the rate since, b + c, is
 //! consistent with one under λ. The line is known from every report since the turn began,
 //! so two reports past the end tell it. Like the first-report test it only labels (the turn
 //! tests still hold, and the tracker's IMM with them, until they release: no estimate
-//! moves). 100 runs of paper 002: turn ends labelled after 1.77 s instead of 3.43 s, labels
-//! right 98.4 → 98.7 %, 0.4 reports a run inside the turns labelled straight too early.
+//! moves). 100 runs of paper 002: turn ends labelled after 1.87 s instead of 3.43 s, labels
+//! right 98.4 → 98.7 %, 0.3 reports a run inside the turns labelled straight too early.
 //! (The same test on the ground speed, to end an acceleration's label, gained nothing: at
 //! NACv 2 a 0.4 m/s² acceleration's end takes as long to tell from noise as its onset, and
 //! its false ends cost what its early ends gained; docs/evaluation.md.)
@@ -111,9 +111,9 @@ use super::{
 pub const FIRST_REPORT_TURN_SIGMAS: f64 = 2.9;
 
 /// k of the turn's end test by default ([`GateParams::turn_end_sigmas`]): 3.5σ. Measured,
-/// 100 runs (docs/evaluation.md): paper 002's turn ends labelled after 1.77 s instead of
-/// 3.43 s, with 0.4 reports a run inside its turns labelled straight too early; 3.0σ gave
-/// 1.58 s and five times as many, 4.0σ 1.99 s.
+/// 100 runs (docs/evaluation.md): paper 002's turn ends labelled after 1.87 s instead of
+/// 3.43 s, with 0.3 reports a run inside its turns labelled straight too early; 3.0σ gave
+/// 1.67 s and three times as many (0.9 a run), 4.0σ 2.07 s.
 pub const TURN_END_SIGMAS: f64 = 3.5;
 
 /// Most reports a window may span.
@@ -739,9 +739,9 @@ fn first_report_fires(
 }
 
 /// The end test (module doc) on a series y(t) (per-report variance) that holds a
-/// manoeuvre: for m = 1..=`max_newest`, the newest m of `points` are taken as the first
-/// after its end and the reports before them (at least [`END_MIN_REFERENCE`]) as the
-/// manoeuvre; y is fitted as a + b·t + c·max(0, t − t_ref) (t_ref the last reference
+/// manoeuvre: for m = [`END_MIN_NEWEST`]..=`max_newest`, the newest m of `points` are
+/// taken as the first after its end and the reports before them (at least
+/// [`END_MIN_REFERENCE`]) as the manoeuvre; y is fitted as a + b·t + c·max(0, t − t_ref) (t_ref the last reference
 /// report) by least squares, b the manoeuvre's rate and b + c the rate since. The end
 /// fires for a split whose reference is a manoeuvre (|b| > λ), whose change is against it
 /// and significant (c·b < 0, |c| > k σ_c), and whose rate since is consistent with one
@@ -789,6 +789,9 @@ fn hinge_end(
         ntt += t * t;
         ny += y;
         nty += t * y;
+        if m < END_MIN_NEWEST {
+            continue;
+        }
         // The peek is the last reference report: t_ref.
         let (t_ref, _, _) = newest_first.clone().next()?;
         let mf = m as f64;
@@ -822,6 +825,15 @@ fn hinge_end(
 
 /// Fewest reports the end test ([`hinge_end`]) takes as the manoeuvre's line.
 const END_MIN_REFERENCE: usize = 4;
+
+/// Fewest reports after the end the end test takes: one report never ends a turn. Real
+/// velocity reports have outliers a split of one would read as an end (AFR34ZG's
+/// mid-turn heading jumps of 1.3° against a 2°/s turn at 124 m/s: with single-report ends
+/// allowed, 42 turn labels ended on that flight where 28 did without the test, 31 of them
+/// back to a turn within 10 s; with two, 35 and 24), and where a turn's end is two reports
+/// old the two-report split tells it anyway (paper 002: ends labelled after 1.87 s instead
+/// of 1.77 s, 100 runs).
+const END_MIN_NEWEST: usize = 2;
 
 /// Most reports the turn's end test tries as the first after the end: the turn-rate test
 /// (five reports) releases within about as many after a turn's end, and the end label must
@@ -1677,7 +1689,8 @@ mod tests {
             100.0 * early_with,
             100.0 * early_without
         );
-        assert!(with <= 2.0 && without >= 3.0, "{with} vs {without}");
+        // Measured: 1.89 s with, 3.35 s without.
+        assert!(with <= 2.2 && without >= 3.0, "{with} vs {without}");
         // It labels: the turn test (and the tracker's IMM) still holds where it ends most
         // turns.
         assert!(held >= 200, "{held}");
@@ -1711,7 +1724,7 @@ mod tests {
                 continue;
             };
             // Every split's plain fit; the returned rate is one of them.
-            let fits: Vec<f64> = (1..=8_usize)
+            let fits: Vec<f64> = (END_MIN_NEWEST..=8_usize)
                 .filter(|&m| n >= m + END_MIN_REFERENCE)
                 .map(|m| {
                     let t_ref = points[n - 1 - m].0;
@@ -2310,7 +2323,7 @@ mod tests {
         let &(t0, y0, _) = pts.last()?;
         let mean_var = pts.iter().map(|q| q.2).sum::<f64>() / n as f64;
         let mut best: Option<(f64, f64)> = None;
-        for m in (1..=END_TURN_REPORTS).filter(|&m| n >= m + END_MIN_REFERENCE) {
+        for m in (END_MIN_NEWEST..=END_TURN_REPORTS).filter(|&m| n >= m + END_MIN_REFERENCE) {
             let t_ref = pts[n - 1 - m].0 - t0;
             let a = nalgebra::DMatrix::from_fn(n, 3, |i, j| match j {
                 0 => 1.0,

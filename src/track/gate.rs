@@ -779,7 +779,8 @@ fn hinge_end(
     // The newest m's (Σt, Σt², Σy, Σty), newest first; the hinge is at the report before.
     let (mut nt, mut ntt, mut ny, mut nty) = (0.0, 0.0, 0.0, 0.0);
     let mut newest_first = points.rev();
-    let mut best: Option<(f64, f64)> = None;
+    // The strongest split so far as (c·D, D · Σvar · n·Stt, b + c).
+    let mut best: Option<(f64, f64, f64)> = None;
     for m in 1..=max_newest {
         if n < (m + END_MIN_REFERENCE) as f64 {
             break;
@@ -806,21 +807,31 @@ fn hinge_end(
         if d.is_nan() || d <= 0.0 {
             continue;
         }
-        let c = (n_tt * n_hy - n_th * n_ty) / d;
-        let b = (n_hh * n_ty - n_th * n_hy) / d;
-        let var_c = sv * n_tt / d;
-        let var_since = sv * (n_tt + n_hh - 2.0 * n_th) / d;
-        let since = b + c;
-        let z2 = c * c / var_c;
-        let ends = b.abs() > lambda
-            && c * b < 0.0
-            && z2 > k * k
-            && since.abs() < lambda + 2.0 * var_since.max(0.0).sqrt();
-        if ends && since.is_finite() && best.is_none_or(|(z0, _)| z2 > z0) {
-            best = Some((z2, since));
+        // c·D and b·D: the tests compare them against D's multiples, with no division
+        // (the divisions were most of a split's cost, as in `hinge_onset`).
+        let nc = n_tt * n_hy - n_th * n_ty;
+        let nb = n_hh * n_ty - n_th * n_hy;
+        // The reference is a manoeuvre (|b| > λ) and the change is against it (c·b < 0).
+        if nb.abs() <= lambda * d || nc * nb >= 0.0 {
+            continue;
+        }
+        // Significant: c² / var c = (c·D)² / (D · Σvar · n·Stt) > k².
+        let z_den = d * sv * n_tt;
+        if nc * nc <= k * k * z_den {
+            continue;
+        }
+        // The rate since is consistent with one under λ: |b + c| < λ + 2 σ(b + c).
+        let since_d = nb + nc;
+        let var_since_d2 = sv * (n_tt + n_hh - 2.0 * n_th) * d;
+        if since_d.abs() >= lambda * d + 2.0 * var_since_d2.max(0.0).sqrt() {
+            continue;
+        }
+        // The strongest split: z² compared by cross-multiplication.
+        if best.is_none_or(|(nc0, den0, _)| nc * nc * den0 > nc0 * nc0 * z_den) {
+            best = Some((nc, z_den, since_d / d));
         }
     }
-    best.map(|(_, since)| since)
+    best.map(|(_, _, since)| since).filter(|s| s.is_finite())
 }
 
 /// Fewest reports the end test ([`hinge_end`]) takes as the manoeuvre's line.

@@ -72,6 +72,11 @@ fn paper002_hybrid_against_kalman_and_imm() {
     // test, 1.72 s without.
     let (turn, _, _) = hy.mean_delay_to_s("CT");
     assert!(turn.unwrap() <= 1.6, "turn onset {turn:?} s");
+    // And their ends, back to CV: 1.87 s over 100 runs with the turn's end test
+    // (`GateParams::turn_end_sigmas`), 3.43 s without.
+    let (end, ends, missed) = hy.mean_delay_to_s("CV");
+    assert_eq!((ends, missed), (2 * runs as usize, 0));
+    assert!(end.unwrap() <= 2.3, "turn end {end:?} s");
     assert!(hy.label_accuracy().unwrap() > 0.95);
     // Consistency: the average position NEES inside the 95 % band of 2 dof over all samples
     // of one run at a time (a wide band: samples within a run are correlated).
@@ -340,7 +345,8 @@ fn airliner_turns_are_labelled_within_a_second() {
     eprintln!("airliner-nacp10: {report}");
     // 100 runs: turns 0.51 s (200 onsets; 0.61 s without the first-report turn test),
     // descents 1.58 s, the deceleration within the descent 4.98 s (0.3 m/s² against NACv 2's
-    // ground speed: the data's own limit, docs/evaluation.md), ends 1.76 s.
+    // ground speed: the data's own limit, docs/evaluation.md), the turns' ends 0.83 s (1.76 s
+    // without the turn's end test).
     let (turn, turns, missed) = by("CT");
     assert_eq!((turns, missed), (20, 0), "{report}");
     assert!(turn.unwrap() <= 1.0, "{report}");
@@ -350,6 +356,9 @@ fn airliner_turns_are_labelled_within_a_second() {
     let (decel, _, missed) = by("CHCA");
     assert_eq!(missed, 0, "{report}");
     assert!(decel.unwrap() <= 8.0, "{report}");
+    let (end, ends, missed) = by("CV");
+    assert_eq!((ends, missed), (20, 0), "{report}");
+    assert!(end.unwrap() <= 1.3, "{report}");
     // The headline mean is over every onset, the slow deceleration included.
     let all = s.mean_detection_delay_s().unwrap();
     assert!(all > turn.unwrap(), "{report}; all onsets {all}");

@@ -741,8 +741,9 @@ fn first_report_fires(
 /// The end test (module doc) on a series y(t) (per-report variance) that holds a
 /// manoeuvre: for m = [`END_MIN_NEWEST`]..=`max_newest`, the newest m of `points` are
 /// taken as the first after its end and the reports before them (at least
-/// [`END_MIN_REFERENCE`]) as the manoeuvre; y is fitted as a + b·t + c·max(0, t − t_ref) (t_ref the last reference
-/// report) by least squares, b the manoeuvre's rate and b + c the rate since. The end
+/// [`END_MIN_REFERENCE`]) as the manoeuvre; y is fitted as a + b·t + c·max(0, t − t_ref)
+/// (t_ref the last reference report) by least squares, b the manoeuvre's rate and b + c
+/// the rate since. The end
 /// fires for a split whose reference is a manoeuvre (|b| > λ), whose change is against it
 /// and significant (c·b < 0, |c| > k σ_c), and whose rate since is consistent with one
 /// under the threshold (|b + c| < λ + 2 σ of b + c). Returns the rate since of the most
@@ -808,7 +809,7 @@ fn hinge_end(
             continue;
         }
         // c·D and b·D: the tests compare them against D's multiples, with no division
-        // (the divisions were most of a split's cost, as in `hinge_onset`).
+        // (as in `hinge_onset`).
         let nc = n_tt * n_hy - n_th * n_ty;
         let nb = n_hh * n_ty - n_th * n_hy;
         // The reference is a manoeuvre (|b| > λ) and the change is against it (c·b < 0).

@@ -609,16 +609,16 @@ mod tests {
         );
         assert_eq!(g.vrate_noise_window_reports, 0.0);
         assert_eq!(g.longest_window(), 26);
-        // The first-report turn test: on by default at 2.9σ, another k, or 0 for off.
-        let first = |toml: &str| {
+        let gate_of = |toml: &str| {
             Config::from_toml_str(toml)
                 .unwrap()
                 .tracker
                 .hybrid_params(false)
                 .unwrap()
                 .gate
-                .first_report_turn_sigmas
         };
+        // The first-report turn test: on by default at 2.9σ, another k, or 0 for off.
+        let first = |toml: &str| gate_of(toml).first_report_turn_sigmas;
         assert_eq!(first(""), Some(2.9));
         assert_eq!(
             first("[tracker.gate]\nfirst_report_turn_sigmas = 3.5\n"),
@@ -630,15 +630,7 @@ mod tests {
         );
         assert_eq!(first("[tracker.gate]\npreset = \"paper002\"\n"), None);
         // The turn's end test: on by default at 3.5σ, another k, or 0 for off.
-        let end = |toml: &str| {
-            Config::from_toml_str(toml)
-                .unwrap()
-                .tracker
-                .hybrid_params(false)
-                .unwrap()
-                .gate
-                .turn_end_sigmas
-        };
+        let end = |toml: &str| gate_of(toml).turn_end_sigmas;
         assert_eq!(end(""), Some(3.5));
         assert_eq!(end("[tracker.gate]\nturn_end_sigmas = 3\n"), Some(3.0));
         assert_eq!(end("[tracker.gate]\nturn_end_sigmas = 0\n"), None);

@@ -2375,6 +2375,17 @@ mod tests {
                 .collect();
             ls_reference(&pts)
         };
+        // The (t, heading, variance) of a window whose every sample is measured and fast
+        // enough: what the onset and end tests read.
+        let headings = |w: &[Sample]| -> Option<Vec<(f64, f64, f64)>> {
+            w.iter()
+                .all(|s| s.measured && s.speed_mps >= p.min_speed_mps)
+                .then(|| {
+                    w.iter()
+                        .map(|s| (s.t_s, s.heading_rad, s.heading_var()))
+                        .collect()
+                })
+        };
         let lambda_turn = p.turn_rate_deg_s.map(f64::to_radians);
         if let Some((slope, sigma)) = heading(gate.recent(p.turn_window_reports)) {
             r.turn_rate_rad_s = Some(slope);
@@ -2389,28 +2400,13 @@ mod tests {
                 .filter(|s| s.t_s > start)
                 .copied()
                 .collect();
-            if since
-                .iter()
-                .all(|s| s.measured && s.speed_mps >= p.min_speed_mps)
-            {
-                let pts: Vec<_> = since
-                    .iter()
-                    .map(|s| (s.t_s, s.heading_rad, s.heading_var()))
-                    .collect();
+            if let Some(pts) = headings(&since) {
                 r.flags.turn_end = hinge_end_reference(&pts, lambda, k).is_some();
             }
         }
         if let (false, Some(lambda)) = (r.flags.turn, lambda_turn) {
             let all = gate.recent(p.onset_reference_reports + p.onset_reports);
-            if p.onset_reports > 0
-                && all
-                    .iter()
-                    .all(|s| s.measured && s.speed_mps >= p.min_speed_mps)
-            {
-                let pts: Vec<_> = all
-                    .iter()
-                    .map(|s| (s.t_s, s.heading_rad, s.heading_var()))
-                    .collect();
+            if let (true, Some(pts)) = (p.onset_reports > 0, headings(all)) {
                 if let Some((rate, sigma, _)) = hinge_reference(&pts, p.onset_reports, lambda) {
                     r.flags.turn_onset = onset_fires(rate, sigma, lambda, false, &p);
                     r.onset_turn_rate_rad_s = Some(rate);

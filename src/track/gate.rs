@@ -412,25 +412,29 @@ impl GateReading {
         self.flags.any()
     }
 
-    /// The reading without its label-only flag ([`GateFlags::turn_first_report`]): what the
-    /// tracker's filters act on (which modes the IMM enters with, the turn rate its CT models
-    /// take), so that a first-report label moves no estimate.
-    pub fn tested(&self) -> GateReading {
-        let mut r = *self;
-        r.flags.turn_first_report = false;
-        r.flags.turn_end = false;
-        r
-    }
-
     /// Transversal movement: a turn test holds, in the direction of the turn.
     pub fn lateral(&self) -> Lateral {
-        let sign = if self.flags.turn_end {
+        self.lateral_with(true)
+    }
+
+    /// [`GateReading::lateral`] of the tests alone, without the label-only flags
+    /// ([`GateFlags::turn_first_report`], [`GateFlags::turn_end`]): what the tracker's
+    /// filters act on (the turn rate its CT models take), so that those labels move no
+    /// estimate.
+    pub fn tested_lateral(&self) -> Lateral {
+        self.lateral_with(false)
+    }
+
+    /// Transversal movement, with or without the label-only flags.
+    fn lateral_with(&self, label_only: bool) -> Lateral {
+        let f = &self.flags;
+        let sign = if label_only && f.turn_end {
             None
-        } else if self.flags.turn {
+        } else if f.turn {
             self.turn_rate_rad_s
-        } else if self.flags.turn_onset || self.flags.turn_first_report {
+        } else if f.turn_onset || (label_only && f.turn_first_report) {
             self.onset_turn_rate_rad_s
-        } else if self.flags.heading_change {
+        } else if f.heading_change {
             self.heading_change_rad
         } else {
             None
@@ -492,13 +496,24 @@ impl GateReading {
     /// a speed change → CHCA; vertical alone → CH; speed alone → CA. `None` when no test
     /// holds.
     pub fn label(&self) -> Option<(FlightMode, Option<TurnDirection>)> {
-        let vertical = self.vertical() != VerticalTrend::Level;
-        let speed = self.speed() != SpeedTrend::Constant;
-        match self.lateral() {
+        self.label_with(self.lateral())
+    }
+
+    /// [`GateReading::label`] of the tests alone (as [`GateReading::tested_lateral`]): the
+    /// mode the tracker's IMM enters with.
+    pub fn tested_label(&self) -> Option<(FlightMode, Option<TurnDirection>)> {
+        self.label_with(self.tested_lateral())
+    }
+
+    /// The label for a transversal movement `lateral`.
+    fn label_with(&self, lateral: Lateral) -> Option<(FlightMode, Option<TurnDirection>)> {
+        match lateral {
             Lateral::Left => return Some((FlightMode::Ct, Some(TurnDirection::Left))),
             Lateral::Right => return Some((FlightMode::Ct, Some(TurnDirection::Right))),
             Lateral::Straight => {}
         }
+        let vertical = self.vertical() != VerticalTrend::Level;
+        let speed = self.speed() != SpeedTrend::Constant;
         match (vertical, speed) {
             (true, true) => Some((FlightMode::Chca, None)),
             (true, false) => Some((FlightMode::Ch, None)),
@@ -599,6 +614,51 @@ impl Run {
     }
 }
 
+/// The sums over the newest m reports of a split (Σt, Σt², Σy, Σty, in the shifted
+/// coordinates of [`LineSums`]), added one report per m, and what a hinge
+/// h = max(0, t − t_ref) at the last report before them makes of them: h is zero before
+/// t_ref, so only these reports add to Σh, Σh², Σhy and Σth. Shared by the onset and the
+/// end tests ([`hinge_onset`], [`hinge_end`]).
+#[derive(Clone, Copy, Debug, Default)]
+struct NewestSums {
+    st: f64,
+    stt: f64,
+    sy: f64,
+    sty: f64,
+}
+
+/// [`NewestSums`]' hinge sums at one t_ref: (Σh, Σh², Σhy, Σth).
+struct HingeSums {
+    sh: f64,
+    shh: f64,
+    shy: f64,
+    sth: f64,
+}
+
+impl NewestSums {
+    #[inline(always)]
+    fn add(&mut self, t: f64, y: f64) {
+        self.st += t;
+        self.stt += t * t;
+        self.sy += y;
+        self.sty += t * y;
+    }
+
+    /// The hinge's sums for the `m` reports added, the hinge at `t_ref`:
+    /// Σh = Σt − m t_ref, Σh² = Σt² − 2 t_ref Σt + m t_ref², Σhy = Σty − t_ref Σy,
+    /// Σth = Σt² − t_ref Σt.
+    #[inline(always)]
+    fn hinge(&self, m: usize, t_ref: f64) -> HingeSums {
+        let mf = m as f64;
+        HingeSums {
+            sh: self.st - mf * t_ref,
+            shh: self.stt - 2.0 * t_ref * self.st + mf * t_ref * t_ref,
+            shy: self.sty - t_ref * self.sy,
+            sth: self.stt - t_ref * self.st,
+        }
+    }
+}
+
 /// A hinge fit found by [`hinge_onset`]: (rate since the onset, its σ, t_ref).
 type HingeFit = (f64, f64, f64);
 
@@ -627,10 +687,9 @@ struct FirstSplit {
 ///
 /// `ty` gives a report's (t, y) in the shifted coordinates of [`LineSums`], and `totals`
 /// are the sums over every report of `all` in them; t_ref is returned in them too. Each
-/// split's reference is the totals less the newest m, and the newest m's own sums (Σt, Σt²,
-/// Σy, Σty, added one report per m) give the hinge's, Σh = Σt − m t_ref, Σh² = Σt² −
-/// 2 t_ref Σt + m t_ref², Σhy = Σty − t_ref Σy: O(m) for every split together (the test runs
-/// on every report of every aircraft).
+/// split's reference is the totals less the newest m, and the newest m's own sums, added one
+/// report per m, give the hinge's ([`NewestSums`]): O(m) for every split together (the test
+/// runs on every report of every aircraft).
 fn hinge_onset(
     all: &[Sample],
     totals: &LineSums,
@@ -648,8 +707,7 @@ fn hinge_onset(
     } = *totals;
     let n = all.len();
     let (nf, sum_y) = (n as f64, sy);
-    // The newest m's (Σt, Σt², Σy, Σty).
-    let (mut nt, mut ntt, mut ny, mut nty) = (0.0, 0.0, 0.0, 0.0);
+    let mut newest = NewestSums::default();
     // The strongest split so far as (n·Σ(h − h̄)(y − ȳ), n·Σ(h − h̄)², t_ref): its slope is
     // the first over the second, and its significance² the first² / (second · Σvar), so
     // splits compare by cross-multiplication, with no division in the loop (divisions
@@ -669,10 +727,7 @@ fn hinge_onset(
         stt -= t * t;
         sy -= y;
         sty -= t * y;
-        nt += t;
-        ntt += t * t;
-        ny += y;
-        nty += t * y;
+        newest.add(t, y);
         let k = split as f64;
         let k_sxx = k * stt - st * st;
         if k_sxx <= 0.0 || (k * sty - st * sy).abs() >= lambda * k_sxx {
@@ -683,10 +738,7 @@ fn hinge_onset(
         let Some(t_ref) = all.get(split - 1).map(|s| ty(s).0) else {
             break;
         };
-        let mf = m as f64;
-        let sh = nt - mf * t_ref;
-        let shh = ntt - 2.0 * t_ref * nt + mf * t_ref * t_ref;
-        let shy = nty - t_ref * ny;
+        let HingeSums { sh, shh, shy, .. } = newest.hinge(m, t_ref);
         let n_hxx = nf * shh - sh * sh;
         if n_hxx <= 0.0 {
             continue;
@@ -777,8 +829,8 @@ fn hinge_end(
     } = totals;
     let n_tt = n * stt - st * st;
     let n_ty = n * sty - st * sy;
-    // The newest m's (Σt, Σt², Σy, Σty), newest first; the hinge is at the report before.
-    let (mut nt, mut ntt, mut ny, mut nty) = (0.0, 0.0, 0.0, 0.0);
+    // The newest m's sums, newest first; the hinge is at the report before them.
+    let mut newest = NewestSums::default();
     let mut newest_first = points.rev();
     // The strongest split so far as (c·D, D · Σvar · n·Stt, b + c).
     let mut best: Option<(f64, f64, f64)> = None;
@@ -787,20 +839,13 @@ fn hinge_end(
             break;
         }
         let (t, y, _) = newest_first.next()?;
-        nt += t;
-        ntt += t * t;
-        ny += y;
-        nty += t * y;
+        newest.add(t, y);
         if m < END_MIN_NEWEST {
             continue;
         }
         // The peek is the last reference report: t_ref.
         let (t_ref, _, _) = newest_first.clone().next()?;
-        let mf = m as f64;
-        let sh = nt - mf * t_ref;
-        let shh = ntt - 2.0 * t_ref * nt + mf * t_ref * t_ref;
-        let sth = ntt - t_ref * nt;
-        let shy = nty - t_ref * ny;
+        let HingeSums { sh, shh, shy, sth } = newest.hinge(m, t_ref);
         let n_hh = n * shh - sh * sh;
         let n_th = n * sth - st * sh;
         let n_hy = n * shy - sh * sy;

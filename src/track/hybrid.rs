@@ -452,8 +452,8 @@ impl HybridTracker {
 
     /// The IMM mode of the gate's label.
     fn entry_mode(&self, reading: &GateReading) -> Option<ImmMode> {
-        // The tests' label, not the first-report test's: it only labels.
-        let (mode, turn) = reading.tested().label()?;
+        // The tests' label: the label-only tests only label.
+        let (mode, turn) = reading.tested_label()?;
         Some(match (mode, turn) {
             (FlightMode::Ct, Some(TurnDirection::Left)) => ImmMode::CtLeft,
             (FlightMode::Ct, _) => ImmMode::CtRight,
@@ -525,8 +525,7 @@ impl HybridTracker {
     fn turn_rate(&self, stale: bool, reading: &GateReading) -> f64 {
         let (lo, hi) = self.params.turn_rate_limits_deg_s;
         let default = self.params.imm.models.ct.omega_rad_s.abs();
-        if !self.params.adapt_turn_rate || reading.tested().lateral() == Lateral::Straight || stale
-        {
+        if !self.params.adapt_turn_rate || reading.tested_lateral() == Lateral::Straight || stale {
             return default;
         }
         self.gate

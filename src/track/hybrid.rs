@@ -55,15 +55,20 @@ pub const NAME: &str = "hybrid";
 pub const CV_FILTER: &str = "kalman-cv";
 
 /// The IMM modes the gate's tests name ([`HybridParams::variable_structure`]): CV always
-/// (every manoeuvre ends in it); for a turn both CT modes (the direction may be misread at
-/// the onset) and CA, whose free horizontal acceleration follows a turn flown at another
-/// rate than the CT models' (without it, paper 000's 4 g reversal: turn velocity RMSE
-/// 11.8 m/s against 10.8, 100 runs); CA for a speed change; CH for a climb or descent; CHCA
-/// for a horizontal acceleration (speed or turn) with a vertical one (a turn begun while
-/// levelling off: without it, the departure's turn altitude RMSE 5.4 m against 4.3).
-/// `None` when no test holds.
-pub fn gate_modes(flags: &GateFlags) -> Option<[bool; N_MODES]> {
+/// (every manoeuvre ends in it); for a turn CA, whose free horizontal acceleration follows a
+/// turn flown at another rate than the CT models' (without it, paper 000's 4 g reversal:
+/// turn velocity RMSE 11.8 m/s against 10.8, 100 runs; kept for a confirmed turn too, where
+/// leaving it out cost paper 003's turns 5 % of their velocity RMSE), and the CT mode of the
+/// turn's `direction`, or both CT modes when none is given (the caller gives it only while
+/// the turn-rate test holds without an onset test: at an onset the direction may be
+/// misread); CA for a speed change; CH for a climb or descent; CHCA for a horizontal
+/// acceleration (speed or turn) with a vertical one (a turn begun while levelling off:
+/// without it, the departure's turn altitude RMSE 5.4 m against 4.3). `None` when no test
+/// holds.
+pub fn gate_modes(flags: &GateFlags, direction: Option<TurnDirection>) -> Option<[bool; N_MODES]> {
     let turn = flags.turn || flags.turn_onset || flags.heading_change;
+    let left = turn && direction != Some(TurnDirection::Right);
+    let right = turn && direction != Some(TurnDirection::Left);
     let speed = flags.along_track || flags.accel_onset || flags.speed_change || flags.accel_change;
     let vertical = flags.vertical || flags.pitch_change;
     if !(turn || speed || vertical) {
@@ -73,8 +78,8 @@ pub fn gate_modes(flags: &GateFlags) -> Option<[bool; N_MODES]> {
     for (on, mode) in [
         (true, ImmMode::Cv),
         (speed || turn, ImmMode::Ca),
-        (turn, ImmMode::CtLeft),
-        (turn, ImmMode::CtRight),
+        (left, ImmMode::CtLeft),
+        (right, ImmMode::CtRight),
         (vertical, ImmMode::Ch),
         ((speed || turn) && vertical, ImmMode::Chca),
     ] {
@@ -134,8 +139,9 @@ pub struct HybridParams {
     /// The IMM runs over CV and the modes the gate named within `min_manoeuvre_dwell_s`
     /// ([`gate_modes`]), not all six: a variable-structure IMM whose model set the measured
     /// velocities choose (paper 002 §1.2: "which thresholds fire chooses" among the
-    /// manoeuvre models; paper 003's VSIMM). Default true. A level turn runs three 6-state
-    /// filters and one 8-state one instead of four and two, a speed change one of each, and
+    /// manoeuvre models; paper 003's VSIMM). Default true. A level turn runs CV, CA and the
+    /// CT mode of its direction (both CT modes at its onset) instead of all six, a speed
+    /// change CV and CA, and
     /// the mixing sums over as many fewer pairs. A mode stays in the set for the dwell after
     /// the gate last named it, as the IMM itself does after the gate's last test. Opened by
     /// divergence alone, or blind (no measured velocity), the IMM keeps every mode: nothing
@@ -569,7 +575,24 @@ impl HybridTracker {
         if needs_imm || imm_manoeuvre {
             self.last_fire_t_s = t_s;
         }
-        if let Some(named) = gate_modes(&f) {
+        // The direction of a confirmed turn (the rate test holds on measured velocities, no
+        // onset test does): its sign is then significant, and the opposite CT mode leaves the IMM's set once the
+        // dwell since it was last named runs out. In a turn that CT mode's likelihood is
+        // negligible: paper 002's turn RMSE moves by under a millimetre, paper 000's 4 g
+        // reversal improves (its old side no longer mixes in), and a fleet replay runs 5 %
+        // fewer instructions (`docs/speed.md`).
+        let direction = if f.turn && !f.turn_onset && !f.heading_change && !stale {
+            reading.turn_rate_rad_s.map(|w| {
+                if w > 0.0 {
+                    TurnDirection::Left
+                } else {
+                    TurnDirection::Right
+                }
+            })
+        } else {
+            None
+        };
+        if let Some(named) = gate_modes(&f, direction) {
             for (t, on) in self.named_t_s.iter_mut().zip(named) {
                 if on {
                     *t = t_s;
@@ -1423,38 +1446,95 @@ mod tests {
         assert!(into_imm >= 2 && out_of_imm >= 2, "{into_imm} {out_of_imm}");
     }
 
-    /// In paper 002's level turns the IMM runs CV, CA and both CT modes (the gate named a
-    /// turn), and every mode with `variable_structure` off; the estimates differ only by
-    /// what the dropped climb modes would have mixed in.
+    /// In paper 002's level turns the IMM runs CV, CA and the CT mode of the turn's
+    /// direction (both CT modes until the onset tests have been quiet for the dwell: the
+    /// direction may be misread at an onset), and every mode with `variable_structure` off;
+    /// the estimates differ only by what the dropped modes would have mixed in.
     #[test]
     fn a_turn_runs_the_turn_modes_alone() {
         let mut rng = StdRng::seed_from_u64(7);
         let truth = paper_truth(&mut rng);
         let reps = reports(&truth, Feed::Joint, &mut rng);
-        let turn_set = [true, true, true, true, false, false];
+        let dwell_s = HybridParams::default().min_manoeuvre_dwell_s;
         let mut narrowed = HybridTracker::default();
         let mut full = HybridTracker::new(HybridParams {
             variable_structure: false,
             ..HybridParams::default()
         });
-        let (mut in_turn, mut worst_m) = (0, 0.0f64);
+        let (mut both, mut one_side, mut worst_m) = (0, [0; 2], 0.0f64);
+        let mut onset_t_s = f64::NEG_INFINITY;
         for m in &reps {
             narrowed.update(m).unwrap();
             full.update(m).unwrap();
             if full.in_imm() {
                 assert_eq!(full.imm().active(), &[true; N_MODES]);
             }
-            let f = narrowed.gate.reading().flags;
+            let reading = *narrowed.gate.reading();
+            let f = reading.flags;
+            if f.turn_onset || f.heading_change {
+                onset_t_s = m.t_s;
+            }
             if narrowed.in_imm() && (f.turn || f.turn_onset) && !f.vertical {
-                assert_eq!(narrowed.imm().active(), &turn_set, "t {}", m.t_s);
-                in_turn += 1;
+                let active = *narrowed.imm().active();
+                let expected = if m.t_s - onset_t_s <= dwell_s {
+                    both += 1;
+                    [true, true, true, true, false, false]
+                } else {
+                    let left = reading.turn_rate_rad_s.unwrap() > 0.0;
+                    one_side[usize::from(left)] += 1;
+                    [true, true, left, !left, false, false]
+                };
+                assert_eq!(active, expected, "t {}", m.t_s);
                 let (a, b) = (narrowed.estimate().unwrap(), full.estimate().unwrap());
                 worst_m = worst_m.max((a.pos_m - b.pos_m).norm());
             }
         }
-        assert!(in_turn > 300, "{in_turn} updates in turns");
-        // The turn modes dominate either way: 4 cm apart at most on this run.
+        // Most of each turn runs one CT mode, turns both ways.
+        assert!(
+            both >= 5 && one_side.iter().all(|&n| n > 100),
+            "{both} {one_side:?}"
+        );
+        // The turn modes dominate either way: a few cm apart at most on this run.
         assert!(worst_m < 0.5, "{worst_m} m");
+    }
+
+    /// The gate's modes: CV always; a turn names CA and the CT of its direction, or both CT
+    /// modes when the direction is not given; CHCA only with a horizontal and a vertical test.
+    #[test]
+    fn gate_modes_name_the_turn_direction() {
+        let turn = GateFlags {
+            turn: true,
+            ..GateFlags::default()
+        };
+        assert_eq!(gate_modes(&GateFlags::default(), None), None);
+        assert_eq!(
+            gate_modes(&turn, None),
+            Some([true, true, true, true, false, false])
+        );
+        assert_eq!(
+            gate_modes(&turn, Some(TurnDirection::Left)),
+            Some([true, true, true, false, false, false])
+        );
+        assert_eq!(
+            gate_modes(&turn, Some(TurnDirection::Right)),
+            Some([true, true, false, true, false, false])
+        );
+        let climbing_turn = GateFlags {
+            vertical: true,
+            ..turn
+        };
+        assert_eq!(
+            gate_modes(&climbing_turn, Some(TurnDirection::Right)),
+            Some([true, true, false, true, true, true])
+        );
+        let climb = GateFlags {
+            vertical: true,
+            ..GateFlags::default()
+        };
+        assert_eq!(
+            gate_modes(&climb, Some(TurnDirection::Left)),
+            Some([true, false, false, false, true, false])
+        );
     }
 
     /// Horizons the daemon publishes, one in the past (refused) and one non-finite.

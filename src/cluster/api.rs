@@ -81,8 +81,12 @@ pub async fn run<B: Bus>(
                         shared.stats.tracks_created.inc();
                         shared.registry.register(icao)
                     });
-                    let t = published.track_state();
-                    slot.record(&history, t.t, t.lat, t.lon, t.alt_m);
+                    slot.record(
+                        &history,
+                        published.estimate.t_s,
+                        &published.frame,
+                        &published.estimate.pos_m,
+                    );
                     slot.store(published.clone());
                     if shared.feed.heard() {
                         shared.feed.send(OutputEvent::Update(published));

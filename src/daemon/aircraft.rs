@@ -454,16 +454,16 @@ impl Aircraft {
         })
     }
 
-    /// The estimate's time and geodetic position (lat, lon in degrees, altitude in m), for
-    /// the trail; `None` without an estimate or when it could not be published.
-    pub fn position(&self) -> Option<(f64, f64, f64, f64)> {
+    /// The estimate's time, the track's plane and the position in it, for the trail (which
+    /// converts it to latitude and longitude when read); `None` without an estimate or when
+    /// it could not be published.
+    pub fn position(&self) -> Option<(f64, &LocalFrame, Vector3<f64>)> {
         let (t_s, pos_m) = self.tracker.estimated_position()?;
-        let frame = self.frame?;
+        let frame = self.frame.as_ref()?;
         if !(t_s.is_finite() && publishable_point(&pos_m)) {
             return None;
         }
-        let (lat, lon, alt_m) = frame.to_geodetic(&pos_m);
-        Some((t_s, lat, lon, alt_m))
+        Some((t_s, frame, pos_m))
     }
 
     /// The state with predicted positions `horizons_s` seconds ahead (checked as
@@ -571,8 +571,8 @@ pub async fn run_task(
                 && (d.time_s >= next_trail_t_s
                     || d.time_s < next_trail_t_s - 2.0 * trail_interval_s)
             {
-                if let Some((t_s, lat, lon, alt_m)) = aircraft.position() {
-                    slot.record(&history, t_s, lat, lon, alt_m);
+                if let Some((t_s, frame, pos_m)) = aircraft.position() {
+                    slot.record(&history, t_s, frame, &pos_m);
                     next_trail_t_s = t_s + trail_interval_s;
                 }
             }

@@ -19,7 +19,7 @@ use crate::decode::{Callsign, Icao};
 use crate::track::geo::LocalFrame;
 use crate::track::{Estimate, Lateral, SpeedTrend, TurnDirection, VerticalTrend};
 use arc_swap::{ArcSwap, ArcSwapOption};
-use nalgebra::Matrix3;
+use nalgebra::{Matrix3, Vector3};
 use serde::Serialize;
 use std::collections::HashMap;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -352,12 +352,20 @@ impl SlotCell {
         self.heard.load_full()
     }
 
-    /// Adds an estimated position to the trail (kept if due: see [`Trail::push`]).
-    pub fn record(&self, history: &HistoryConfig, t_s: f64, lat: f64, lon: f64, alt_m: f64) {
+    /// Adds an estimated position, a point `enu_m` of the track's plane `frame`, to the
+    /// trail (kept if due: see [`Trail::push`]; converted to latitude and longitude when the
+    /// trail is read, [`Trail::push_enu`]).
+    pub fn record(
+        &self,
+        history: &HistoryConfig,
+        t_s: f64,
+        frame: &LocalFrame,
+        enu_m: &Vector3<f64>,
+    ) {
         self.trail
             .lock()
             .unwrap_or_else(PoisonError::into_inner)
-            .push(history, t_s, lat, lon, alt_m);
+            .push_enu(history, t_s, frame, enu_m);
     }
 
     /// The latest snapshot.

@@ -199,6 +199,12 @@ impl LocalFrame {
         self.rotation * (geodetic_to_ecef(lat_deg, lon_deg, h_m) - self.origin_ecef)
     }
 
+    /// A point of `other`'s frame in this one: a rotation and a translation through ECEF,
+    /// no geodesy (a point kept in one plane while its track moved to another).
+    pub fn from_frame(&self, other: &LocalFrame, enu: &Vector3<f64>) -> Vector3<f64> {
+        self.rotation * (other.origin_ecef + other.rotation.transpose() * enu - self.origin_ecef)
+    }
+
     /// A point of this frame back to latitude, longitude (degrees) and height (m).
     pub fn to_geodetic(&self, enu: &Vector3<f64>) -> (f64, f64, f64) {
         ecef_to_geodetic(&(self.origin_ecef + self.rotation.transpose() * enu))

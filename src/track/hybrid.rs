@@ -48,6 +48,12 @@ use super::{
 };
 use nalgebra::{Matrix3, Vector3};
 
+/// CA's IMM probability under which a confirmed turn (its direction known, no speed test
+/// holding) runs without it: [`HybridTracker::running_set`]. A mode at 0.1 % adds 0.1 % of
+/// its estimate to the mixture; CA comes back when a turn onset, a heading change or a
+/// speed test names it again.
+const CA_PRUNE_PROBABILITY: f64 = 0.001;
+
 /// Name of the hybrid tracker.
 pub const NAME: &str = "hybrid";
 
@@ -456,6 +462,39 @@ impl HybridTracker {
         }
     }
 
+    /// The model set of an IMM that is running: [`HybridTracker::model_set`], without CA
+    /// in a `confirmed_turn` (the caller's turn direction) where no speed test holds and CA's
+    /// probability has fallen under [`CA_PRUNE_PROBABILITY`]. CA follows a turn flown at
+    /// another rate than the CT models' (kept in the set for that, [`gate_modes`]); once the
+    /// turn's own CT mode holds it, CA filtered for nothing: 4.6 % of a fleet replay's
+    /// instructions (`docs/speed.md`).
+    fn running_set(
+        &self,
+        t_s: f64,
+        blind: bool,
+        confirmed_turn: bool,
+        f: &GateFlags,
+    ) -> [bool; N_MODES] {
+        let mut set = self.model_set(t_s, blind);
+        let speed = f.along_track || f.accel_onset || f.speed_change || f.accel_change;
+        let ca = ImmMode::Ca.index();
+        if self.params.variable_structure
+            && !blind
+            && confirmed_turn
+            && !speed
+            && self
+                .imm
+                .probabilities()
+                .get(ca)
+                .is_some_and(|&mu| mu < CA_PRUNE_PROBABILITY)
+        {
+            if let Some(on) = set.get_mut(ca) {
+                *on = false;
+            }
+        }
+        set
+    }
+
     /// The IMM mode of the gate's label.
     fn entry_mode(&self, reading: &GateReading) -> Option<ImmMode> {
         // The tests' label: the label-only tests only label.
@@ -635,7 +674,8 @@ impl HybridTracker {
         }
         if let Branch::Imm { by_divergence } = self.branch {
             let before = *self.imm.active();
-            self.imm.set_active(self.model_set(t_s, blind));
+            self.imm
+                .set_active(self.running_set(t_s, blind, direction.is_some(), &f));
             // The gate's label enters a running IMM as it opens one: at the combined
             // estimate, with the entry probability (otherwise it starts at probability 0 and
             // needs reports to overtake the manoeuvre in course: the approach's turn begun
@@ -1448,8 +1488,9 @@ mod tests {
 
     /// In paper 002's level turns the IMM runs CV, CA and the CT mode of the turn's
     /// direction (both CT modes until the onset tests have been quiet for the dwell: the
-    /// direction may be misread at an onset), and every mode with `variable_structure` off;
-    /// the estimates differ only by what the dropped modes would have mixed in.
+    /// direction may be misread at an onset; CA until its probability falls under
+    /// [`CA_PRUNE_PROBABILITY`]), and every mode with `variable_structure` off; the
+    /// estimates differ only by what the dropped modes would have mixed in.
     #[test]
     fn a_turn_runs_the_turn_modes_alone() {
         let mut rng = StdRng::seed_from_u64(7);
@@ -1461,7 +1502,7 @@ mod tests {
             variable_structure: false,
             ..HybridParams::default()
         });
-        let (mut both, mut one_side, mut worst_m) = (0, [0; 2], 0.0f64);
+        let (mut both, mut one_side, mut ca_pruned, mut worst_m) = (0, [0; 2], 0, 0.0f64);
         let mut onset_t_s = f64::NEG_INFINITY;
         for m in &reps {
             narrowed.update(m).unwrap();
@@ -1482,17 +1523,24 @@ mod tests {
                 } else {
                     let left = reading.turn_rate_rad_s.unwrap() > 0.0;
                     one_side[usize::from(left)] += 1;
-                    [true, true, left, !left, false, false]
+                    // CA too, until its probability falls under the pruning threshold.
+                    let ca = active[ImmMode::Ca.index()];
+                    ca_pruned += usize::from(!ca);
+                    [true, ca, left, !left, false, false]
                 };
                 assert_eq!(active, expected, "t {}", m.t_s);
                 let (a, b) = (narrowed.estimate().unwrap(), full.estimate().unwrap());
                 worst_m = worst_m.max((a.pos_m - b.pos_m).norm());
             }
         }
-        // Most of each turn runs one CT mode, turns both ways.
+        // Most of each turn runs one CT mode, turns both ways, and most of that without CA.
         assert!(
             both >= 5 && one_side.iter().all(|&n| n > 100),
             "{both} {one_side:?}"
+        );
+        assert!(
+            2 * ca_pruned > one_side[0] + one_side[1],
+            "{ca_pruned} {one_side:?}"
         );
         // The turn modes dominate either way: a few cm apart at most on this run.
         assert!(worst_m < 0.5, "{worst_m} m");

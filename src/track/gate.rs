@@ -364,15 +364,17 @@ pub struct GateFlags {
 impl GateFlags {
     /// Any test holds: a manoeuvre.
     pub fn any(&self) -> bool {
-        self.turn
-            || self.turn_onset
-            || self.along_track
-            || self.accel_onset
-            || self.vertical
-            || self.speed_change
-            || self.accel_change
-            || self.heading_change
-            || self.pitch_change
+        self.turning() || self.speed_changing() || self.vertical || self.pitch_change
+    }
+
+    /// A turn test holds: the turn rate, its onset or the paper's Δφ.
+    pub fn turning(&self) -> bool {
+        self.turn || self.turn_onset || self.heading_change
+    }
+
+    /// A speed test holds: the along-track acceleration, its onset, the paper's Δv or Δa.
+    pub fn speed_changing(&self) -> bool {
+        self.along_track || self.accel_onset || self.speed_change || self.accel_change
     }
 }
 

@@ -72,10 +72,10 @@ pub const CV_FILTER: &str = "kalman-cv";
 /// without it, the departure's turn altitude RMSE 5.4 m against 4.3). `None` when no test
 /// holds.
 pub fn gate_modes(flags: &GateFlags, direction: Option<TurnDirection>) -> Option<[bool; N_MODES]> {
-    let turn = flags.turn || flags.turn_onset || flags.heading_change;
+    let turn = flags.turning();
     let left = turn && direction != Some(TurnDirection::Right);
     let right = turn && direction != Some(TurnDirection::Left);
-    let speed = flags.along_track || flags.accel_onset || flags.speed_change || flags.accel_change;
+    let speed = flags.speed_changing();
     let vertical = flags.vertical || flags.pitch_change;
     if !(turn || speed || vertical) {
         return None;
@@ -476,12 +476,11 @@ impl HybridTracker {
         f: &GateFlags,
     ) -> [bool; N_MODES] {
         let mut set = self.model_set(t_s, blind);
-        let speed = f.along_track || f.accel_onset || f.speed_change || f.accel_change;
         let ca = ImmMode::Ca.index();
         if self.params.variable_structure
             && !blind
             && confirmed_turn
-            && !speed
+            && !f.speed_changing()
             && self
                 .imm
                 .probabilities()
@@ -593,13 +592,7 @@ impl HybridTracker {
         // manoeuvre (or a diverging CV filter) pays for the IMM. Terminal-area traffic climbs
         // and descends most of the time: on the LAX recording this keeps most updates cheap.
         let f = reading.flags;
-        let horizontal = f.turn
-            || f.turn_onset
-            || f.along_track
-            || f.accel_onset
-            || f.speed_change
-            || f.accel_change
-            || f.heading_change;
+        let horizontal = f.turning() || f.speed_changing();
         let stale = self.velocity_stale(t_s);
         let blind = self.params.imm_without_velocity && stale;
         let needs_imm = (reading.manoeuvre() && horizontal) || trigger || blind;
@@ -615,21 +608,17 @@ impl HybridTracker {
             self.last_fire_t_s = t_s;
         }
         // The direction of a confirmed turn (the rate test holds on measured velocities, no
-        // onset test does): its sign is then significant, and the opposite CT mode leaves the IMM's set once the
-        // dwell since it was last named runs out. In a turn that CT mode's likelihood is
-        // negligible: paper 002's turn RMSE moves by under a millimetre, paper 000's 4 g
-        // reversal improves (its old side no longer mixes in), and a fleet replay runs 5 %
-        // fewer instructions (`docs/speed.md`).
-        let direction = if f.turn && !f.turn_onset && !f.heading_change && !stale {
-            reading.turn_rate_rad_s.map(|w| {
-                if w > 0.0 {
-                    TurnDirection::Left
-                } else {
-                    TurnDirection::Right
-                }
-            })
-        } else {
-            None
+        // onset test does): the sign of its rate is then significant ([`Lateral`] of the
+        // tests), and the opposite CT mode leaves the IMM's set once the dwell since it was
+        // last named runs out. In a turn that CT mode's likelihood is negligible: paper
+        // 002's turn RMSE moves by under a millimetre, paper 000's 4 g reversal improves
+        // (its old side no longer mixes in), and a fleet replay runs 5 % fewer instructions
+        // (`docs/speed.md`).
+        let confirmed = f.turn && !f.turn_onset && !f.heading_change && !stale;
+        let direction = match reading.tested_lateral() {
+            Lateral::Left if confirmed => Some(TurnDirection::Left),
+            Lateral::Right if confirmed => Some(TurnDirection::Right),
+            _ => None,
         };
         if let Some(named) = gate_modes(&f, direction) {
             for (t, on) in self.named_t_s.iter_mut().zip(named) {

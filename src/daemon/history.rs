@@ -279,47 +279,28 @@ pub struct Trail {
     last_step: Step,
     /// The prediction errors of points 3..=len, each from the step before it.
     residuals: Chunks,
-    /// The plane the positions are in: the first point's (its track's plane, or the plane
-    /// at its latitude and longitude for a geodetic point) since the trail was last empty.
+    /// The plane the positions are in: the first point's track's plane since the trail was
+    /// last empty.
     frame: Option<LocalFrame>,
 }
 
-/// `position` in the plane `frame`: a point of another plane moved in by a rotation and a
-/// translation, a geodetic one converted. Out of line: a track's points are in its trail's
-/// plane but for the few after a reset, and inlined these conversions cost the common
+/// `enu_m`, a point of the plane `other`, in the plane `frame` (a rotation and a
+/// translation, [`LocalFrame::from_frame`]). Out of line: a track's points are in its
+/// trail's plane but for the few after a reset, and inlined this conversion cost the common
 /// path its inlining of the byte writes.
 #[inline(never)]
-fn in_plane(frame: &LocalFrame, position: &Position) -> Vector3<f64> {
-    match *position {
-        Position::Geodetic(lat, lon, alt_m) => frame.to_enu(lat, lon, alt_m),
-        Position::Enu(f, enu_m) => frame.from_frame(f, &enu_m),
-    }
-}
-
-/// A position to store.
-#[derive(Clone, Copy)]
-enum Position<'a> {
-    /// Latitude, longitude (degrees) and height (m).
-    Geodetic(f64, f64, f64),
-    /// A point of a track's plane, m.
-    Enu(&'a LocalFrame, Vector3<f64>),
+fn in_plane(frame: &LocalFrame, other: &LocalFrame, enu_m: &Vector3<f64>) -> Vector3<f64> {
+    frame.from_frame(other, enu_m)
 }
 
 impl Trail {
-    /// Adds the estimate at feed time `t_s`, at latitude and longitude `lat`, `lon` (degrees)
-    /// and height `alt_m`, if it is at least `min_interval_s` after the newest point (else
-    /// nothing), and drops what falls out of the window or past `max_points`. A time before
-    /// the newest point (a replay looped onto the same aircraft) starts the trail afresh.
-    /// Non-finite values are never stored.
-    pub fn push(&mut self, cfg: &HistoryConfig, t_s: f64, lat: f64, lon: f64, alt_m: f64) {
-        if lat.is_finite() && lon.is_finite() && alt_m.is_finite() {
-            self.push_at(cfg, t_s, Position::Geodetic(lat, lon, alt_m));
-        }
-    }
-
-    /// [`Trail::push`] of the point `enu_m` of the track's plane `frame`: stored as it is
-    /// while the trail is in that plane (a track's points are, until the track is reset in a
-    /// new one), else moved into the trail's plane ([`LocalFrame::from_frame`]).
+    /// Adds the estimate at feed time `t_s`, the point `enu_m` of the track's plane `frame`,
+    /// if it is at least `min_interval_s` after the newest point (else nothing), and drops
+    /// what falls out of the window or past `max_points`. A time before the newest point (a
+    /// replay looped onto the same aircraft) starts the trail afresh. Non-finite values are
+    /// never stored. The point is stored as it is while the trail is in that plane (a
+    /// track's points are, until the track is reset in a new one), else moved into the
+    /// trail's plane ([`LocalFrame::from_frame`]).
     pub fn push_enu(
         &mut self,
         cfg: &HistoryConfig,
@@ -327,12 +308,9 @@ impl Trail {
         frame: &LocalFrame,
         enu_m: &Vector3<f64>,
     ) {
-        if enu_m.iter().all(|v| v.is_finite()) {
-            self.push_at(cfg, t_s, Position::Enu(frame, *enu_m));
+        if !enu_m.iter().all(|v| v.is_finite()) {
+            return;
         }
-    }
-
-    fn push_at(&mut self, cfg: &HistoryConfig, t_s: f64, position: Position) {
         if cfg.max_points == 0 || !t_s.is_finite() {
             return;
         }
@@ -353,18 +331,16 @@ impl Trail {
             self.pop_front();
         }
         if self.len == 0 {
-            self.frame = Some(match position {
-                Position::Geodetic(lat, lon, _) => LocalFrame::new(lat, lon, 0.0),
-                Position::Enu(frame, _) => *frame,
-            });
+            self.frame = Some(*frame);
         }
-        let Some(frame) = self.frame.as_ref() else {
+        let Some(own) = self.frame.as_ref() else {
             return;
         };
-        let enu_m = match position {
-            // A plane is its origin's (`LocalFrame::new` is its only constructor).
-            Position::Enu(f, enu_m) if f.origin() == frame.origin() => enu_m,
-            other => in_plane(frame, &other),
+        // A plane is its origin's (`LocalFrame::new` is its only constructor).
+        let enu_m = if frame.origin() == own.origin() {
+            *enu_m
+        } else {
+            in_plane(own, frame, enu_m)
         };
         if !enu_m.iter().all(|v| v.is_finite()) {
             return;
@@ -496,6 +472,21 @@ mod tests {
     use rand::rngs::StdRng;
     use rand::{Rng, SeedableRng};
 
+    /// A geodetic point pushed as a track in its own plane at that point would give it:
+    /// the trail's plane is then the first point's, and every later point is moved in.
+    impl Trail {
+        fn push(&mut self, cfg: &HistoryConfig, t_s: f64, lat: f64, lon: f64, alt_m: f64) {
+            let (frame, enu_m) = own_plane(lat, lon, alt_m);
+            self.push_enu(cfg, t_s, &frame, &enu_m);
+        }
+    }
+
+    /// The plane at a point's latitude and longitude, and the point in it.
+    fn own_plane(lat: f64, lon: f64, alt_m: f64) -> (LocalFrame, Vector3<f64>) {
+        let frame = LocalFrame::new(lat, lon, 0.0);
+        (frame, frame.to_enu(lat, lon, alt_m))
+    }
+
     fn cfg(window_minutes: f64, max_points: usize) -> HistoryConfig {
         HistoryConfig {
             window_minutes,
@@ -604,11 +595,17 @@ mod tests {
             while self.points.len() >= cfg.max_points {
                 self.points.pop_front();
             }
+            let (point_frame, point_enu) = own_plane(lat, lon, alt_m);
             if self.points.is_empty() {
                 self.base_t_s = t_s;
-                self.frame = Some(LocalFrame::new(lat, lon, 0.0));
+                self.frame = Some(point_frame);
             }
-            let enu_m = self.frame.unwrap().to_enu(lat, lon, alt_m);
+            let frame = self.frame.unwrap();
+            let enu_m = if frame == point_frame {
+                point_enu
+            } else {
+                frame.from_frame(&point_frame, &point_enu)
+            };
             self.points.push_back(Fixed::of(self.base_t_s, t_s, &enu_m));
         }
     }

@@ -353,8 +353,8 @@ impl SlotCell {
     }
 
     /// Adds an estimated position, a point `enu_m` of the track's plane `frame`, to the
-    /// trail (kept if due: see [`Trail::push`]; converted to latitude and longitude when the
-    /// trail is read, [`Trail::push_enu`]).
+    /// trail (kept if due, and converted to latitude and longitude when the trail is read:
+    /// [`Trail::push_enu`]).
     pub fn record(
         &self,
         history: &HistoryConfig,

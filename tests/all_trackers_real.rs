@@ -51,6 +51,7 @@ fn check(algorithm: &str, recording: &str) {
             },
             tracker: adsb_tracker::daemon::build_tracker,
             tracker_config: config.tracker.clone(),
+            duplicate_window_s: config.decode.duplicate_window_s,
         },
     );
     let mut updates = 0u64;

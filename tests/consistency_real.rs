@@ -50,7 +50,7 @@ fn afr34zg_is_rarely_flagged() {
     ] {
         let g = groups("afr34zg-cdg-tls.jsonl", 1000.0, tracker);
         let all = &g["all"];
-        assert_eq!(all.airborne, 12_829, "{tracker}");
+        assert_eq!(all.airborne, 12_109, "{tracker}");
         within(
             &format!("{tracker} steady diverging %"),
             all.steady_diverging_pct(),

@@ -73,6 +73,7 @@ async fn looped(name: &str, passes: u64) -> StatsSnapshot {
             },
             tracker: adsb_tracker::daemon::build_tracker,
             tracker_config: config.tracker.clone(),
+            duplicate_window_s: config.decode.duplicate_window_s,
         },
         retire_after_s: config.tracker.retire_after_s,
         idle: Duration::from_secs(3600),

@@ -15,8 +15,9 @@ use std::mem::size_of;
 #[test]
 fn what_an_aircraft_holds_stays_within_its_budget() {
     // The aircraft itself (boxed into its task): decoder state, facts, frame; the rare
-    // ended snapshot boxed (inline, it took 536 bytes of the 1,232).
-    assert!(size_of::<Aircraft>() <= 768, "{}", size_of::<Aircraft>());
+    // ended snapshot boxed (inline, it took 536 bytes of the 1,232). 40 bytes recognise a
+    // report heard twice (`decode.duplicate_window_s`): 208 when they held the reports.
+    assert!(size_of::<Aircraft>() <= 800, "{}", size_of::<Aircraft>());
     // The default tracker, its tuning shared: 6.3 KB when each held its own copy and the
     // gate's 32-report buffer inline; 48 bytes more since its IMM's model set follows the
     // gate (when the gate last named each mode).

@@ -91,6 +91,7 @@ fn run(frames: &[RawFrame], algorithm: &str) -> Outcome {
         },
         tracker: adsb_tracker::daemon::build_tracker,
         tracker_config,
+        duplicate_window_s: config.decode.duplicate_window_s,
     };
     let horizons = config.tracker.prediction_horizons_s.clone();
     let mut decoder = Decoder::new(DecoderConfig {

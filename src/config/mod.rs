@@ -47,6 +47,11 @@ pub const MIN_SPEED: f64 = 1e-3;
 pub const MAX_SPEED: f64 = 1e6;
 
 /// A finite number within `lo..=hi` (the range named in the refusal).
+/// The longest `decode.duplicate_window_s`, s: a transponder sends each extended squitter
+/// type at intervals of 0.4 s or more (position and velocity every 0.4-0.6 s, DO-260B), so
+/// a wider window could take a real repeat of an unchanged report for a copy.
+pub const MAX_DUPLICATE_WINDOW_S: f64 = 0.35;
+
 fn seconds_within(key: &str, v: f64, lo: f64, hi: f64) -> Result<(), ConfigError> {
     if v.is_finite() && (lo..=hi).contains(&v) {
         Ok(())
@@ -247,6 +252,11 @@ pub struct DecodeConfig {
     pub recent_address_s: f64,
     /// Feed time given to text frames without a timestamp: frames per second of feed time.
     pub nominal_rate_hz: f64,
+    /// A position or velocity report equal to the aircraft's last one of its kind within
+    /// this many seconds of feed time is one transmission heard twice (two receivers merged
+    /// into one feed), not given to the tracker again; 0 keeps every copy. Below 0.4 s, the
+    /// shortest interval at which a transponder repeats an extended squitter.
+    pub duplicate_window_s: f64,
 }
 
 #[derive(Clone, Copy, Debug, Deserialize, PartialEq)]
@@ -431,6 +441,14 @@ impl Config {
             1e-3,
             86_400.0,
         )?;
+        if self.decode.duplicate_window_s != 0.0 {
+            seconds_within(
+                "decode.duplicate_window_s",
+                self.decode.duplicate_window_s,
+                1e-6,
+                MAX_DUPLICATE_WINDOW_S,
+            )?;
+        }
         seconds_within(
             "decode.nominal_rate_hz",
             self.decode.nominal_rate_hz,
@@ -542,6 +560,10 @@ mod tests {
         assert!(c.feeds.is_empty());
         assert_eq!(c.tracker.algorithm, "hybrid");
         assert_eq!(c.decode.recent_address_s, 60.0);
+        assert_eq!(c.decode.duplicate_window_s, 0.2);
+        // 0 keeps every copy.
+        let off = Config::from_toml_str("[decode]\nduplicate_window_s = 0.0\n").unwrap();
+        assert_eq!(off.decode.duplicate_window_s, 0.0);
     }
 
     #[test]
@@ -568,6 +590,14 @@ mod tests {
                 "recent_address_s",
             ),
             ("[decode]\nbogus_key = 1\n", "bogus_key"),
+            (
+                "[decode]\nduplicate_window_s = 0.5\n",
+                "decode.duplicate_window_s",
+            ),
+            (
+                "[decode]\nduplicate_window_s = -0.1\n",
+                "decode.duplicate_window_s",
+            ),
             (
                 "[[feeds]]\nname = \"a\"\naddr = \"127.0.0.1:30005\"\nformat = \"csv\"\n",
                 "feeds[0].format",

@@ -11,6 +11,7 @@ use crate::decode::{AltitudeSource, Decoded, Icao, Message, Velocity};
 use crate::track::geo::{LocalFrame, TrigCache};
 use crate::track::{Measurement, Observed, Tracker, UNMEASURED_VARIANCE};
 use nalgebra::{Matrix3, Vector3};
+use std::hash::{Hash, Hasher};
 use std::sync::Arc;
 use std::time::Instant;
 use tokio::sync::mpsc;
@@ -122,6 +123,9 @@ pub struct AircraftConfig {
     /// Builds the tracker of a new aircraft.
     pub tracker: fn(&crate::config::TrackerConfig) -> Box<dyn Tracker>,
     pub tracker_config: crate::config::TrackerConfig,
+    /// `decode.duplicate_window_s`: a position or velocity report equal to the last one of
+    /// its kind within this long is a copy ([`Aircraft::handle`]); 0 keeps every copy.
+    pub duplicate_window_s: f64,
 }
 
 /// One aircraft's state, owned by its task.
@@ -157,6 +161,67 @@ pub struct Aircraft {
     /// none, depending on where the batch boundaries fell).
     /// Boxed: it is rarely there, and inline it took 0.5 KB of every aircraft.
     ended: Option<Box<Published>>,
+    /// See [`AircraftConfig::duplicate_window_s`].
+    duplicate_window_s: f64,
+    /// The feed time and [`report_fingerprint`] of the last position report (airborne or
+    /// surface) and of the last velocity report: what a copy is recognised by
+    /// ([`Aircraft::is_copy`]). A fingerprint, not the report: two whole messages took 208
+    /// bytes of every aircraft.
+    last_reports: [(f64, u64); 2],
+}
+
+/// Which of [`Aircraft::is_copy`]'s slots a report belongs to (0: a position, airborne or
+/// surface; 1: a velocity) and a 64-bit hash of everything it says, with its downlink
+/// format; `None` for the reports no tracker takes. Two different reports in one window with
+/// the same hash would need a 64-bit collision between consecutive reports of one aircraft.
+fn report_fingerprint(d: &Decoded) -> Option<(usize, u64)> {
+    let mut h = rustc_hash::FxHasher::default();
+    d.df.hash(&mut h);
+    let bits = |v: Option<f64>| v.map(f64::to_bits);
+    let slot = match d.msg {
+        Message::AirbornePosition {
+            type_code,
+            alt_ft,
+            alt_source,
+            cpr,
+        } => {
+            (type_code, alt_ft, alt_source as u8).hash(&mut h);
+            (cpr.lat, cpr.lon, cpr.odd).hash(&mut h);
+            0
+        }
+        Message::SurfacePosition {
+            type_code,
+            speed_kt,
+            track_deg,
+            cpr,
+        } => {
+            (type_code, bits(speed_kt), bits(track_deg)).hash(&mut h);
+            (cpr.lat, cpr.lon, cpr.odd).hash(&mut h);
+            0
+        }
+        Message::Velocity(v) => {
+            (
+                v.subtype,
+                v.ground_kt.map(|(e, n)| (e.to_bits(), n.to_bits())),
+            )
+                .hash(&mut h);
+            (
+                bits(v.heading_deg),
+                v.airspeed_kt.map(|(a, t)| (a.to_bits(), t)),
+            )
+                .hash(&mut h);
+            (
+                v.vrate_fpm,
+                v.vrate_source as u8,
+                v.gnss_minus_baro_ft,
+                v.nac_v,
+            )
+                .hash(&mut h);
+            1
+        }
+        _ => return None,
+    };
+    Some((slot, h.finish()))
 }
 
 impl Aircraft {
@@ -179,7 +244,35 @@ impl Aircraft {
             last_update_t_s: f64::NEG_INFINITY,
             ending_gap_s: 0.5 * cfg.tracker_config.max_gap_s,
             ended: None,
+            duplicate_window_s: cfg.duplicate_window_s,
+            last_reports: [(f64::NEG_INFINITY, 0); 2],
         }
+    }
+
+    /// Whether `d` repeats the last report of its kind (a position, airborne or surface, or
+    /// a velocity) within `duplicate_window_s` of feed time, either side: one transmission
+    /// heard by two receivers whose frames one feed merges (OpenSky's recordings, a feeder
+    /// with two antennas). A tracker given both copies would count one measurement twice,
+    /// its covariance shrinking on no new information (`afr34zg-cdg-tls.jsonl`: 6 % of its
+    /// positions and 5 % of its velocities arrive twice, microseconds apart). A transponder
+    /// repeats an unchanged report 0.4 s later at the soonest, which the window stays under
+    /// (`config::MAX_DUPLICATE_WINDOW_S`). A report that is not a copy becomes the last of
+    /// its kind; a copy does not, so the window runs from the first copy.
+    fn is_copy(&mut self, d: &Decoded) -> bool {
+        if self.duplicate_window_s <= 0.0 {
+            return false;
+        }
+        let Some((slot, fingerprint)) = report_fingerprint(d) else {
+            return false;
+        };
+        let Some(last) = self.last_reports.get_mut(slot) else {
+            return false;
+        };
+        if (d.time_s - last.0).abs() <= self.duplicate_window_s && last.1 == fingerprint {
+            return true;
+        }
+        *last = (d.time_s, fingerprint);
+        false
     }
 
     /// The last decoded position given to the tracker: (t, lat, lon, height m).
@@ -206,6 +299,10 @@ impl Aircraft {
                 Some(mean) => mean + (power - mean) / SIGNAL_MEAN_MESSAGES,
                 None => power,
             });
+        }
+        if self.is_copy(d) {
+            counts.duplicate_reports += 1;
+            return false;
         }
         let t = d.time_s;
         let measurement = match d.msg {
@@ -751,6 +848,7 @@ mod tests {
             tracker_config: crate::config::Config::default_config()
                 .map(|c| c.tracker)
                 .unwrap_or_else(|e| panic!("{e}")),
+            duplicate_window_s: 0.2,
         }
     }
 
@@ -896,6 +994,76 @@ mod tests {
         let p = slot.load().unwrap_or_else(|| panic!("a snapshot"));
         assert_eq!((p.facts.callsign, p.facts.messages), (Some(callsign), 5));
         assert!(slot.heard().is_none());
+    }
+
+    /// One transmission heard twice (two receivers merged into one feed, microseconds apart,
+    /// either order) is used once: the track is the one the single copies give, bit for bit,
+    /// and each copy is counted. An unchanged velocity repeated half a second later (a
+    /// transponder's next squitter) is a new report, and with the window at 0 every copy is
+    /// used.
+    #[test]
+    fn a_report_heard_twice_is_used_once() {
+        use crate::sim::encode::{airborne_velocity, VelocityReport};
+        let velocity = airborne_velocity(
+            ICAO,
+            &VelocityReport {
+                ve_kt: 0.0,
+                vn_kt: 447.0,
+                vrate_fpm: 0.0,
+                vrate_source: crate::decode::VerticalRateSource::Baro,
+                nac_v: 2,
+            },
+        );
+        // Positions every 0.5 s, each followed by a velocity report 0.25 s later.
+        let reports = |dec: &mut Decoder| -> Vec<Decoded> {
+            positions(dec, 100.0, 48.0, 2.0, 20)
+                .into_iter()
+                .flat_map(|p| {
+                    let v = frame(dec, p.time_s + 0.25, &velocity);
+                    [p, v]
+                })
+                .collect()
+        };
+        let run = |window_s: f64, copies: bool| {
+            let mut cfg = config(crate::daemon::build_tracker);
+            cfg.duplicate_window_s = window_s;
+            let mut ac = Aircraft::new(ICAO, &cfg);
+            let mut counts = Counts::default();
+            let mut dec = decoder();
+            for (i, d) in reports(&mut dec).into_iter().enumerate() {
+                if copies {
+                    // The copy 20 us after or before, with another receiver's signal level.
+                    let dt_s = if i % 2 == 0 { 2e-5 } else { -2e-5 };
+                    let copy = Decoded {
+                        time_s: d.time_s + dt_s,
+                        signal: Some(99),
+                        ..d
+                    };
+                    ac.handle(&d, &mut counts);
+                    ac.handle(&copy, &mut counts);
+                } else {
+                    ac.handle(&d, &mut counts);
+                }
+            }
+            (ac.tracker.estimate(), counts)
+        };
+        let (single, single_counts) = run(0.2, false);
+        let (deduplicated, counts) = run(0.2, true);
+        assert!(single.is_some());
+        assert_eq!(deduplicated, single);
+        assert_eq!(counts.duplicate_reports, 40);
+        assert_eq!(counts.messages, 80);
+        assert_eq!(counts.track_updates, single_counts.track_updates);
+        // 20 positions and 20 velocities; the first position only starts the CPR pair.
+        assert_eq!(single_counts.track_updates, 38);
+        assert_eq!(single_counts.duplicate_reports, 0);
+        // The same velocity every 0.5 s is a new report each time.
+        assert_eq!(single_counts.messages, 40);
+        // Window 0: every copy reaches the tracker (the copies earlier than their original
+        // come out of order and are refused).
+        let (_, kept) = run(0.0, true);
+        assert_eq!(kept.duplicate_reports, 0);
+        assert!(kept.track_updates > 38, "{kept:?}");
     }
 
     #[test]

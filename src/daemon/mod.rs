@@ -353,6 +353,7 @@ fn router_config(config: &Config, overload: router::Overload) -> RouterConfig {
             },
             tracker: build_tracker,
             tracker_config: config.tracker.clone(),
+            duplicate_window_s: config.decode.duplicate_window_s,
         },
         retire_after_s: config.tracker.retire_after_s,
         idle: Duration::try_from_secs_f64(config.tracker.retire_after_s).unwrap_or(Duration::MAX),

@@ -44,6 +44,10 @@ pub struct Stats {
     /// the Mode S replies whose address it knows). Counted by the aircraft, so the sum
     /// checks the router's own count.
     pub aircraft_messages: Counter,
+    /// Position and velocity reports that repeated the aircraft's last one of their kind
+    /// within `decode.duplicate_window_s` (one transmission heard twice), not given to the
+    /// tracker again. Counted in `aircraft_messages` too.
+    pub duplicate_reports: Counter,
     /// Tracker updates done and refused.
     pub track_updates: Counter,
     pub track_errors: Family<Labels, Counter>,
@@ -233,6 +237,7 @@ impl Stats {
             positions_accepted: Counter::default(),
             positions_rejected: Family::default(),
             aircraft_messages: Counter::default(),
+            duplicate_reports: Counter::default(),
             track_updates: Counter::default(),
             track_errors: Family::default(),
             track_resets_nonfinite: Counter::default(),
@@ -300,6 +305,11 @@ impl Stats {
             "aircraft_messages",
             "Messages that reached their aircraft (routed, not dropped)",
             s.aircraft_messages.clone(),
+        );
+        registry.register(
+            "duplicate_reports",
+            "Position and velocity reports heard twice (one transmission from two receivers), used once",
+            s.duplicate_reports.clone(),
         );
         registry.register("track_updates", "Tracker updates", s.track_updates.clone());
         registry.register(
@@ -552,6 +562,7 @@ impl Stats {
             positions_accepted: self.positions_accepted.get(),
             positions_rejected: read(&self.positions_rejected, "reason", POSITION_REJECT_REASONS),
             aircraft_messages: self.aircraft_messages.get(),
+            duplicate_reports: self.duplicate_reports.get(),
             track_updates: self.track_updates.get(),
             track_errors: read(&self.track_errors, "reason", TRACK_ERROR_REASONS),
             track_resets_nonfinite: self.track_resets_nonfinite.get(),
@@ -649,6 +660,9 @@ pub struct StatsSnapshot {
     pub positions_rejected: BTreeMap<String, u64>,
     /// Messages that reached their aircraft (routed, not dropped).
     pub aircraft_messages: u64,
+    /// Of them, position and velocity reports heard twice within
+    /// `decode.duplicate_window_s` (one transmission from two receivers), used once.
+    pub duplicate_reports: u64,
     pub track_updates: u64,
     pub track_errors: BTreeMap<String, u64>,
     /// Tracks reset instead of publishing a non-finite or runaway estimate.
@@ -690,6 +704,8 @@ pub struct StatsSnapshot {
 pub struct Counts {
     /// See [`Stats::aircraft_messages`].
     pub messages: u64,
+    /// See [`Stats::duplicate_reports`].
+    pub duplicate_reports: u64,
     pub positions_accepted: u64,
     pub track_updates: u64,
     /// By [`POSITION_REJECT_REASONS`] index.
@@ -733,6 +749,9 @@ impl Counts {
     pub fn flush(&mut self, stats: &Stats) {
         if self.messages > 0 {
             stats.aircraft_messages.inc_by(self.messages);
+        }
+        if self.duplicate_reports > 0 {
+            stats.duplicate_reports.inc_by(self.duplicate_reports);
         }
         if self.positions_accepted > 0 {
             stats.positions_accepted.inc_by(self.positions_accepted);

@@ -64,6 +64,7 @@ pub fn sync_pipeline(config: &Config, algorithm: &str) -> SyncPipeline {
             },
             tracker: crate::daemon::build_tracker,
             tracker_config,
+            duplicate_window_s: config.decode.duplicate_window_s,
         },
     )
 }

@@ -277,12 +277,14 @@ fn evaluate_recordings(
         bail!("--nominal-rate must be a positive number of frames per second");
     }
     let mut results = Vec::new();
+    let mut lags = String::new();
     for path in recordings.split(',').map(str::trim) {
         let path = PathBuf::from(path);
         let frames = consistency::read_frames_at(&path, None, nominal_rate_hz)?;
         let name = path
             .file_name()
             .map_or("recording".to_string(), |s| s.to_string_lossy().to_string());
+        lags.push_str(&adsb_tracker::eval::latency::markdown_rows(&name, &frames));
         for tracker in trackers.split(',').map(str::trim) {
             if !adsb_tracker::config::ALGORITHMS.contains(&tracker) {
                 bail!("--trackers: unknown {tracker:?}");
@@ -296,6 +298,8 @@ fn evaluate_recordings(
         }
     }
     print!("{}", consistency::markdown(&results));
+    println!();
+    print!("{}{lags}", adsb_tracker::eval::latency::MARKDOWN_HEADER);
     let json_path = out.join("consistency.json");
     std::fs::write(&json_path, serde_json::to_string_pretty(&results)?)
         .with_context(|| format!("writing {}", json_path.display()))?;

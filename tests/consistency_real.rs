@@ -141,3 +141,26 @@ fn lax_nacp10_taken_literally_is_overconfident() {
     let pct = |k: &str| g[k].steady_diverging_pct().unwrap();
     assert!(pct("10") > pct("9") && pct("9") > pct("8"), "{g:?}");
 }
+
+/// AFR34ZG's velocity reports are about a second older than its positions
+/// (`eval::latency`, no tracker involved): in its departure and arrival turns, the position
+/// reports less the integral of the velocity reports follow v(t)·1.07 s. The same method
+/// finds the simulator's known offsets within 0.1 s (its module test).
+#[test]
+fn afr34zg_velocities_lag_its_positions_by_about_a_second() {
+    use adsb_tracker::eval::latency;
+    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("fixtures")
+        .join("afr34zg-cdg-tls.jsonl");
+    let frames = consistency::read_frames_at(&path, None, 1000.0).unwrap();
+    let all = latency::reports(&frames);
+    let o = all
+        .values()
+        .next()
+        .and_then(latency::estimate)
+        .unwrap_or_else(|| panic!("no estimate"));
+    assert_eq!(all.len(), 1);
+    assert!(o.windows >= 10, "{o:?}");
+    assert!((0.95..=1.2).contains(&o.velocity_lag_s), "{o:?}");
+    assert!(o.sigma_s < 0.05, "{o:?}");
+}

@@ -6,6 +6,7 @@
 pub mod bench;
 pub mod consistency;
 pub mod io;
+pub mod latency;
 pub mod plot;
 pub mod report;
 pub mod score;

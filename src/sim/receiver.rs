@@ -24,8 +24,10 @@
 //! stationary σ `gnss_bias_sigma_m` and time constant `gnss_bias_tau_s`, stepped exactly
 //! between position reports (b ← e^(−Δ/τ) b + σ √(1 − e^(−2Δ/τ)) w, started from its
 //! stationary law); undeclared accuracy (`declare_accuracy = false`: no operational
-//! status, NACv 0); and a position valid `position_validity_offset_s` before the frame that
-//! carries it. With every key at its default the random streams are the ones the simulator
+//! status, NACv 0); a position valid `position_validity_offset_s` before the frame that
+//! carries it, and a velocity valid `velocity_validity_offset_s` before its frame (real
+//! velocity reports are about a second older than their positions: `eval::latency`). With
+//! every key at its default the random streams are the ones the simulator
 //! always drew, so existing scenarios give byte-identical files.
 //!
 //! Outputs, all time-ordered and byte-identical for the same seed: `PREFIX.beast`,
@@ -123,6 +125,7 @@ struct Config {
     bias_sigma_m: f64,
     bias_tau_s: f64,
     position_offset_s: f64,
+    velocity_offset_s: f64,
     ref_lat_rad: f64,
     ref_lon_rad: f64,
     ref_m: f64,
@@ -160,6 +163,8 @@ struct Emitter {
     /// The flight again, for positions valid at another time than the frame's
     /// (`position_validity_offset_s`): its own cursor, so both are queried forward in time.
     position_flight: Option<Flight>,
+    /// The same for velocities valid before their frame (`velocity_validity_offset_s`).
+    velocity_flight: Option<Flight>,
     /// The correlated GNSS error (east, north), m, and the time it was last stepped, s.
     bias: Option<(f64, f64, f64)>,
     /// Its own random stream, so the white-noise draws stay those of the other settings.
@@ -182,6 +187,8 @@ impl Emitter {
         let odd = rng.gen::<bool>();
         let position_flight =
             (cfg.position_offset_s != 0.0).then(|| Flight::new(plan.trajectory.clone()));
+        let velocity_flight =
+            (cfg.velocity_offset_s != 0.0).then(|| Flight::new(plan.trajectory.clone()));
         Self {
             icao: plan.icao,
             callsign: plan.callsign,
@@ -192,6 +199,7 @@ impl Emitter {
             odd,
             last_truth_tick: None,
             position_flight,
+            velocity_flight,
             bias: None,
             bias_rng: StdRng::seed_from_u64(mix(seed ^ mix(index as u64) ^ 0x6761_7573)),
         }
@@ -242,7 +250,13 @@ impl Emitter {
                 self.odd = !self.odd;
                 f
             }
-            VELOCITY => self.velocity_frame(&state, cfg),
+            VELOCITY => {
+                let reported = match self.velocity_flight.as_mut() {
+                    Some(f) => f.state_at((t_s - cfg.velocity_offset_s).max(0.0)),
+                    None => state,
+                };
+                self.velocity_frame(&reported, cfg)
+            }
             IDENT => encode::identification(self.icao, CATEGORY_LARGE, &self.callsign),
             _ => encode::operational_status(self.icao, cfg.nac_p),
         };
@@ -531,6 +545,7 @@ pub fn run(scenario: &Scenario, seed: u64, out_prefix: &Path) -> Result<SimSumma
         bias_sigma_m: st.gnss_bias_sigma_m,
         bias_tau_s: st.gnss_bias_tau_s,
         position_offset_s: st.position_validity_offset_s,
+        velocity_offset_s: st.velocity_validity_offset_s,
         ref_lat_rad: ref_lat,
         ref_lon_rad: scenario.reference.lon_deg.to_radians(),
         ref_m,
@@ -687,6 +702,7 @@ mod tests {
             bias_sigma_m: 0.0,
             bias_tau_s: 60.0,
             position_offset_s: 0.0,
+            velocity_offset_s: 0.0,
             ref_lat_rad: 0.0,
             ref_lon_rad: 0.0,
             ref_m: 6.4e6,

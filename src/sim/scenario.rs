@@ -110,6 +110,11 @@ pub struct Settings {
     /// are current). Default 0. -2..=2.
     #[serde(default)]
     pub position_validity_offset_s: f64,
+    /// The same for velocities: the velocity a frame carries is the truth this long before
+    /// the frame is sent. Real transponders send velocities about a second older than their
+    /// positions (`afr34zg-cdg-tls.jsonl`: 1.07 s, `eval::latency`). Default 0. -2..=2.
+    #[serde(default)]
+    pub velocity_validity_offset_s: f64,
 }
 
 fn default_gnss_bias_tau_s() -> f64 {
@@ -447,6 +452,12 @@ impl Scenario {
             -2.0,
             2.0,
         )?;
+        check_range(
+            "settings.velocity_validity_offset_s",
+            s.velocity_validity_offset_s,
+            -2.0,
+            2.0,
+        )?;
         check_positive("settings.report_period_s", s.report_period_s)?;
         check_positive("settings.truth_period_s", s.truth_period_s)?;
         check_range("settings.truth_period_s", s.truth_period_s, 1e-3, f64::MAX)?;
@@ -707,6 +718,7 @@ pub fn fleet(spec: &FleetSpec) -> Result<Scenario, SimError> {
             gnss_bias_sigma_m: 0.0,
             gnss_bias_tau_s: default_gnss_bias_tau_s(),
             position_validity_offset_s: 0.0,
+            velocity_validity_offset_s: 0.0,
         },
         aircraft,
     })

@@ -364,3 +364,41 @@ fn airliner_turns_are_labelled_within_a_second() {
     assert!(all > turn.unwrap(), "{report}; all onsets {all}");
     assert!(s.false_switches_per_100().unwrap() <= 1.0, "{report}");
 }
+
+/// Velocity reports a second older than their frames, as AFR34ZG's are (`eval::latency`):
+/// in paper 002's turns (3°/s at 70 m/s) each points 3° behind, 3.7 m/s off, and the
+/// hybrid's turn error grows sixfold (100 runs: 9.7 → 60.6 m, ANEES 1.78 → 24.7). With
+/// `tracker.imm.velocity_lag_s` set to the lag, its CT modes turn each report on by the turn
+/// over the lag (`imm::aged_for_turn`): 13.0 m, ANEES 2.06. The labels wait for the late
+/// velocities either way (turn onset 2.5 s).
+#[test]
+fn velocity_reports_a_second_late_are_turned_on() {
+    let mut sc = adsb_tracker::sim::load_scenario("paper002").unwrap();
+    sc.settings.velocity_validity_offset_s = 1.0;
+    let runs = 10;
+    let mut scores = Vec::new();
+    for lag_s in [0.0, 1.0] {
+        let mut config = Config::default_config().unwrap();
+        config.tracker.imm.velocity_lag_s = lag_s;
+        let dir = std::env::temp_dir().join(format!("adsb-tb-lag{lag_s}-{}", std::process::id()));
+        let exp = monte_carlo(&sc, &["hybrid".to_string()], runs, 1, &config, &dir).unwrap();
+        std::fs::remove_dir_all(&dir).ok();
+        scores.extend(exp.results.into_iter().map(|r| r.scores));
+    }
+    let (late, turned) = (&scores[0], &scores[1]);
+    let report = format!(
+        "turn RMSE {:.1} -> {:.1} m, straight {:.2} -> {:.2} m, ANEES {:.2} -> {:.2}",
+        rmse(late, "CT"),
+        rmse(turned, "CT"),
+        rmse(late, "CV"),
+        rmse(turned, "CV"),
+        late.estimates["all"].anees_pos().unwrap(),
+        turned.estimates["all"].anees_pos().unwrap(),
+    );
+    eprintln!("{report}");
+    assert!(rmse(late, "CT") > 40.0, "{report}");
+    assert!(rmse(turned, "CT") < 16.0, "{report}");
+    assert!(rmse(turned, "CV") <= rmse(late, "CV"), "{report}");
+    let anees = turned.estimates["all"].anees_pos().unwrap();
+    assert!((1.5..=3.0).contains(&anees), "{report}");
+}

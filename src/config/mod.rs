@@ -595,6 +595,10 @@ mod tests {
                 "decode.duplicate_window_s",
             ),
             (
+                "[tracker.imm]\nvelocity_lag_s = -0.5\n",
+                "tracker.imm.velocity_lag_s",
+            ),
+            (
                 "[decode]\nduplicate_window_s = -0.1\n",
                 "decode.duplicate_window_s",
             ),

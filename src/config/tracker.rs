@@ -117,6 +117,9 @@ impl PerMode {
 }
 
 /// The mode names of [`PerMode`], in the same order: for messages.
+/// The longest `tracker.imm.velocity_lag_s`, s: the simulator's offsets go to 2 s.
+const MAX_VELOCITY_LAG_S: f64 = 5.0;
+
 const MODE_KEYS: [&str; N_MODES] = ["cv", "ca", "ct_left", "ct_right", "ch", "chca"];
 
 /// `[tracker.imm]`: the Markov chain of the modes and the CT models' rate.
@@ -132,6 +135,8 @@ pub struct ImmConfig {
     pub initial_probabilities: PerMode,
     /// Turn rate of the CT models when it is not adapted, deg/s.
     pub ct_turn_rate_deg_s: f64,
+    /// How much older a velocity report is than its frame, s ([`ImmParams::velocity_lag_s`]).
+    pub velocity_lag_s: f64,
 }
 
 /// `[tracker.divergence]`.
@@ -407,6 +412,13 @@ impl ImmConfig {
         )?;
         // As models::STANDARD_RATE_RAD_S is written (to_radians() differs in the last bit).
         p.models.ct.omega_rad_s = rate * std::f64::consts::PI / 180.0;
+        p.velocity_lag_s = check(
+            "tracker.imm.velocity_lag_s",
+            self.velocity_lag_s,
+            0.0,
+            false,
+            MAX_VELOCITY_LAG_S,
+        )?;
         Ok(p)
     }
 }

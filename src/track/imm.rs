@@ -157,6 +157,11 @@ pub struct ImmParams {
     pub initial_probabilities: [f64; N_MODES],
     /// Paper 000's criterion and suppressor on each model's step.
     pub divergence: DivergenceParams,
+    /// How much older a velocity report is than the frame that carries it, s: the CT modes
+    /// take it as their velocity that long ago ([`aged_for_turn`]). 0 (the default): every
+    /// report is current, as the simulator's are unless told otherwise. Real transponders'
+    /// can be about a second old (`afr34zg-cdg-tls.jsonl`: 1.07 s, `eval::latency`).
+    pub velocity_lag_s: f64,
 }
 
 impl Default for ImmParams {
@@ -177,6 +182,7 @@ impl Default for ImmParams {
             switch_weights: w,
             initial_probabilities: [0.6, 0.08, 0.08, 0.08, 0.08, 0.08],
             divergence: DivergenceParams::default(),
+            velocity_lag_s: 0.0,
         }
     }
 }
@@ -351,14 +357,52 @@ fn mode_step_of(
 ) -> Result<ModeOutcome, TrackError> {
     match model {
         Model::Cv(m) => mode_step::<6>(m, input, x_out, p_out),
-        Model::Ct(m) => mode_step::<6>(m, input, x_out, p_out),
+        Model::Ct(m) => match aged_for_turn(input.obs, m.omega_rad_s, input.velocity_lag_s) {
+            Some(obs) => mode_step::<6>(
+                m,
+                &ModeInput {
+                    obs: &obs,
+                    ..*input
+                },
+                x_out,
+                p_out,
+            ),
+            None => mode_step::<6>(m, input, x_out, p_out),
+        },
         Model::Ch(m) => mode_step::<6>(m, input, x_out, p_out),
         Model::Ca(m) => mode_step::<8>(m, input, x_out, p_out),
         Model::Chca(m) => mode_step::<8>(m, input, x_out, p_out),
     }
 }
 
+/// A report's velocity as a CT model at `omega_rad_s` sees it when the report is `lag_s`
+/// old: under the model the velocity turns at ω, so the report's v(t − lag) is
+/// R(−ω·lag) v(t), and the report rotated by ω·lag (its covariance with it) measures v(t).
+/// Exact for the model's deterministic motion; the process noise of those `lag_s` is not
+/// added. `None` when nothing turns: no lag, no rate, or no velocity in the report (CV and
+/// CH keep their velocity, so a lag changes nothing there; CA and CHCA would take
+/// v − a·lag, not modelled: a speed change of 0.5 m/s² moves the velocity 0.5 m/s in a
+/// second, where a 3°/s turn at 140 m/s turns it 7 m/s).
+fn aged_for_turn(obs: &Observation, omega_rad_s: f64, lag_s: f64) -> Option<Observation> {
+    let angle = omega_rad_s * lag_s;
+    if angle == 0.0 || !angle.is_finite() {
+        return None;
+    }
+    let (sin, cos) = angle.sin_cos();
+    let r = Matrix3::new(cos, -sin, 0.0, sin, cos, 0.0, 0.0, 0.0, 1.0);
+    let turned = |o: &Observed| Observed {
+        value: r * o.value,
+        cov: r * o.cov * r.transpose(),
+    };
+    match obs {
+        Observation::Position(_) => None,
+        Observation::Velocity(v) => Some(Observation::Velocity(turned(v))),
+        Observation::Both(p, v) => Some(Observation::Both(*p, turned(v))),
+    }
+}
+
 /// What one mode's filter reads in an IMM step.
+#[derive(Clone, Copy)]
 struct ModeInput<'a> {
     /// Every mode's state after the last step.
     states: &'a ModeStates,
@@ -369,6 +413,8 @@ struct ModeInput<'a> {
     divergence: &'a DivergenceParams,
     /// This mode's consecutive divergence events before the step.
     previous_run: u32,
+    /// [`ImmParams::velocity_lag_s`].
+    velocity_lag_s: f64,
 }
 
 /// One mode's mixing, prediction and guarded update on the leading K states of its
@@ -825,6 +871,7 @@ impl Imm {
                 obs,
                 divergence,
                 previous_run: self.divergence_runs[j],
+                velocity_lag_s: self.params.velocity_lag_s,
             };
             let outcome = mode_step_of(&self.models[j], &input, x_out, p_out);
             match outcome {
@@ -1402,6 +1449,57 @@ mod tests {
     use super::*;
     use crate::track::UNMEASURED_VARIANCE;
 
+    /// A velocity report `lag` seconds old, turned by [`aged_for_turn`], is the CT model's
+    /// velocity now: the model's own F carries the report's velocity over the lag to the
+    /// same vector (to rounding), its covariance turned with it. Nothing turns without a
+    /// lag, a rate, or a velocity.
+    #[test]
+    fn a_late_velocity_is_turned_on_by_the_turn() {
+        use crate::track::models::{Ct, ResetTail};
+        for (left, rate_dps, lag_s) in [(true, 3.0, 1.0), (false, 2.0, 1.07), (true, 0.5, 0.3)] {
+            let ct = Ct::turning(left, rate_dps * std::f64::consts::PI / 180.0);
+            // The state a lag ago: heading north-east at 140 m/s, climbing 2 m/s.
+            let then = State6::from([0.0, 0.0, 3000.0, 99.0, 99.0, 2.0]);
+            let (f, _) = ResetTail::<6>::leading_fq(&ct, lag_s);
+            let now = f * then;
+            let cov = Matrix3::new(4.0, 1.0, 0.5, 1.0, 2.0, 0.25, 0.5, 0.25, 9.0);
+            let report = Observed {
+                value: then.fixed_rows::<3>(3).into_owned(),
+                cov,
+            };
+            let Some(Observation::Velocity(turned)) =
+                aged_for_turn(&Observation::Velocity(report), ct.omega_rad_s, lag_s)
+            else {
+                panic!("a turned velocity");
+            };
+            let want = now.fixed_rows::<3>(3).into_owned();
+            assert!((turned.value - want).norm() < 1e-9, "{turned:?} {want}");
+            // The horizontal variance is turned (its trace kept), the vertical untouched.
+            assert!((turned.cov.trace() - cov.trace()).abs() < 1e-12);
+            assert_eq!(turned.cov[(2, 2)], cov[(2, 2)]);
+            assert!((turned.cov - turned.cov.transpose()).norm() < 1e-12);
+            // Both: the position stays as it was.
+            let position = Observed {
+                value: Vector3::new(1.0, 2.0, 3.0),
+                cov: Matrix3::identity(),
+            };
+            let both = aged_for_turn(&Observation::Both(position, report), ct.omega_rad_s, lag_s);
+            assert_eq!(both, Some(Observation::Both(position, turned)));
+            assert_eq!(
+                aged_for_turn(&Observation::Position(position), ct.omega_rad_s, lag_s),
+                None
+            );
+            assert_eq!(
+                aged_for_turn(&Observation::Velocity(report), ct.omega_rad_s, 0.0),
+                None
+            );
+            assert_eq!(
+                aged_for_turn(&Observation::Velocity(report), 0.0, lag_s),
+                None
+            );
+        }
+    }
+
     /// Each mode's step on its model's leading states ([`mode_step`]) is bit for bit the
     /// 9-state one ([`mode_step_full`]): state, covariance, NIS, likelihood, divergence run
     /// and velocity correction, on random mixtures, steps and reports, including reports far
@@ -1481,6 +1579,7 @@ mod tests {
                     obs: &obs,
                     divergence: &divergence,
                     previous_run: run,
+                    velocity_lag_s: 0.0,
                 };
                 let reduced = mode_step_of(model, &input, &mut x_r, &mut p_r);
                 let full = mode_step_full(model.as_dyn(), &input, &mut x_f, &mut p_f);

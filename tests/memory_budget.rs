@@ -20,13 +20,21 @@ fn what_an_aircraft_holds_stays_within_its_budget() {
     assert!(size_of::<Aircraft>() <= 800, "{}", size_of::<Aircraft>());
     // The default tracker, its tuning shared: 6.3 KB when each held its own copy and the
     // gate's 32-report buffer inline; 48 bytes more since its IMM's model set follows the
-    // gate (when the gate last named each mode).
+    // gate (when the gate last named each mode), 16 since it learns its velocity reports'
+    // age (the lag its IMM uses, and the boxed learner).
     assert!(
-        size_of::<HybridTracker>() <= 1840,
+        size_of::<HybridTracker>() <= 1856,
         "{}",
         size_of::<HybridTracker>()
     );
     assert!(size_of::<Imm>() <= 576, "{}", size_of::<Imm>());
+    // The hybrid's velocity-lag learner, boxed on its first report: the sums of one 60 s
+    // window and a few positions waiting for the next velocity report.
+    assert!(
+        size_of::<adsb_tracker::track::lag::VelocityLag>() <= 400,
+        "{}",
+        size_of::<adsb_tracker::track::lag::VelocityLag>()
+    );
     assert!(size_of::<Gate>() <= 256, "{}", size_of::<Gate>());
     assert!(size_of::<CvKalman>() <= 800, "{}", size_of::<CvKalman>());
     // Trackers built with one tuning share it: the same tracker twice costs no second copy

@@ -175,6 +175,9 @@ pub struct HybridConfig {
     pub variable_structure: bool,
     /// Learn each aircraft's measurement noise from its innovations (`track::noise`).
     pub learn_noise: bool,
+    /// Learn how much older each aircraft's velocity reports are than its positions
+    /// (`track::lag`), for the IMM's CT modes.
+    pub learn_velocity_lag: bool,
     /// Bounds of the learned factor on the declared covariance.
     pub noise_scale_limits: [f64; 2],
     /// An innovation's εᵀε is winsorised at this many times Tr(S) before the learner
@@ -520,6 +523,7 @@ impl TrackerConfig {
         // Paper 002's preset runs its RMIMM over every mode ([`HybridParams::paper002`]).
         p.variable_structure = h.variable_structure && !paper002_gate;
         p.noise = self.noise_params()?;
+        p.learn_velocity_lag = h.learn_velocity_lag;
         Ok(p)
     }
 

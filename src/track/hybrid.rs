@@ -39,6 +39,7 @@ use super::imm::{
     Initiator, Labels, Start, IMM_NAME, N_MODES,
 };
 use super::kalman::{self, MotionModel};
+use super::lag::VelocityLag;
 use super::models::{Cv, Matrix6, Matrix9, Model, State6, State9, ACC};
 use super::nis::NisWindow;
 use super::noise::{local_up, NoiseLearner, NoiseParams};
@@ -153,6 +154,11 @@ pub struct HybridParams {
     /// divergence alone, or blind (no measured velocity), the IMM keeps every mode: nothing
     /// then says which manoeuvre it is.
     pub variable_structure: bool,
+    /// Learn how much older the aircraft's velocity reports are than its positions
+    /// ([`super::lag::VelocityLag`]) and let the IMM's CT modes allow for it
+    /// ([`ImmParams::velocity_lag_s`], which applies until then). Default true: a lag is used
+    /// once the turns and speed changes seen put it above 0.1 s by three standard errors.
+    pub learn_velocity_lag: bool,
 }
 
 impl Default for HybridParams {
@@ -173,6 +179,7 @@ impl Default for HybridParams {
             entry_probability: 0.5,
             variable_structure: true,
             noise: NoiseParams::default(),
+            learn_velocity_lag: true,
         }
     }
 }
@@ -280,6 +287,10 @@ pub struct HybridTracker {
     /// The aircraft's learned measurement noise. Kept when a gap restarts the track: it
     /// is the transponder's and the receiver's, not the track's.
     noise: NoiseLearner,
+    /// The age of its velocity reports, learned (`learn_velocity_lag`); boxed, made at the
+    /// first report: under 400 bytes (`tests/memory_budget.rs`) that a tracker built without
+    /// it does not hold. Kept over a restart like the noise.
+    lag: Option<Box<VelocityLag>>,
 }
 
 impl Default for HybridTracker {
@@ -311,12 +322,30 @@ impl HybridTracker {
             stats: HybridStats::default(),
             nis: NisWindow::default(),
             noise: NoiseLearner::default(),
+            lag: None,
         }
     }
 
     /// The tuning in use.
     pub fn params(&self) -> &HybridParams {
         &self.params
+    }
+
+    /// Gives `m` to the velocity-lag learner, and the IMM the lag once it is learnt. Reports
+    /// out of time order are left out (the tracker refuses them too).
+    fn learn_lag(&mut self, m: &Measurement) {
+        if self.init.track_t_s().is_some_and(|t| m.t_s < t) {
+            return;
+        }
+        let lag = self.lag.get_or_insert_with(Box::default);
+        lag.push(
+            m.t_s,
+            m.position.as_ref().map(|o| (o.value.x, o.value.y)),
+            m.velocity.as_ref().map(|o| (o.value.x, o.value.y)),
+        );
+        if let Some(lag_s) = lag.lag_s() {
+            self.imm.set_velocity_lag(lag_s);
+        }
     }
 
     /// Whether the IMM runs.
@@ -746,8 +775,13 @@ impl Tracker for HybridTracker {
     /// A new track; the learned measurement noise is kept (it is the aircraft's).
     fn reset(&mut self) {
         let noise = self.noise;
+        let lag = self.lag.take();
         *self = Self::new(*self.params);
         self.noise = noise;
+        self.lag = lag.map(|mut l| {
+            l.new_plane();
+            l
+        });
     }
 
     fn set_accuracy_declared(&mut self, position: bool, velocity: bool) {
@@ -761,6 +795,9 @@ impl Tracker for HybridTracker {
 
     fn update(&mut self, m: &Measurement) -> Result<(), TrackError> {
         let track_t_s = self.init.track_t_s();
+        if self.params.learn_velocity_lag {
+            self.learn_lag(m);
+        }
         match self.init.offer(m)? {
             Start::Waiting => Ok(()),
             Start::New(start) => {

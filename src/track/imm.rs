@@ -540,6 +540,9 @@ pub struct Imm {
     /// The modes of the current model set ([`Imm::set_active`]): the enabled ones unless a
     /// caller narrows them.
     active: [bool; N_MODES],
+    /// The velocity reports' age the CT modes allow for, s ([`ImmParams::velocity_lag_s`],
+    /// or what the aircraft's reports taught: [`Imm::set_velocity_lag`]).
+    velocity_lag_s: f64,
 }
 
 impl Imm {
@@ -556,6 +559,7 @@ impl Imm {
             nis: [f64::NAN; N_MODES],
             cv_blocks: [BlockStat::default(); 2],
             active: params.enabled,
+            velocity_lag_s: params.velocity_lag_s,
         };
         imm.mu = imm.normalised(&params.initial_probabilities);
         imm
@@ -564,6 +568,14 @@ impl Imm {
     /// The tuning in use.
     pub fn params(&self) -> &ImmParams {
         &self.params
+    }
+
+    /// The age of this aircraft's velocity reports, s, learned from them
+    /// ([`super::lag::VelocityLag`]): it replaces [`ImmParams::velocity_lag_s`].
+    pub fn set_velocity_lag(&mut self, lag_s: f64) {
+        if lag_s.is_finite() && lag_s >= 0.0 {
+            self.velocity_lag_s = lag_s;
+        }
     }
 
     /// `probabilities` restricted to the active modes and normalised (uniform over the
@@ -871,7 +883,7 @@ impl Imm {
                 obs,
                 divergence,
                 previous_run: self.divergence_runs[j],
-                velocity_lag_s: self.params.velocity_lag_s,
+                velocity_lag_s: self.velocity_lag_s,
             };
             let outcome = mode_step_of(&self.models[j], &input, x_out, p_out);
             match outcome {

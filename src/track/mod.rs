@@ -15,6 +15,7 @@ pub mod hybrid;
 pub mod imm;
 pub mod jerk;
 pub mod kalman;
+pub mod lag;
 pub mod models;
 pub mod nis;
 pub mod noise;

@@ -445,6 +445,7 @@ mod tests {
                 signal: None,
                 corrected_bits: 0,
                 msg: Message::AllCall { capability: 5 },
+                me: 0,
             })
             .collect();
     }

@@ -169,6 +169,10 @@ pub struct Decoded {
     /// Number of bits the CRC repaired (0 for a clean frame).
     pub corrected_bits: u8,
     pub msg: Message,
+    /// The 56-bit ME field of a DF17/18 frame, as repaired; 0 for other formats. With the
+    /// address and the format, the whole content of an extended squitter: what a second
+    /// copy of one transmission is recognised by (`Aircraft::is_copy`).
+    pub me: u64,
 }
 
 /// How the [`Decoder`] treats damaged frames and short replies.
@@ -449,33 +453,34 @@ impl Decoder {
             return Err(Skip::WrongLength);
         }
         let now_s = frame.time_s;
-        let decoded = |icao: u32, corrected_bits: u8, msg: Message| Decoded {
+        let decoded = |icao: u32, corrected_bits: u8, msg: Message, me: u64| Decoded {
             time_s: now_s,
             icao: Icao(icao),
             df,
             signal: frame.signal,
             corrected_bits,
             msg,
+            me,
         };
         match df {
             0 | 4 | 16 | 20 => {
                 let icao = self.address_parity(bytes, now_s)?;
                 let alt_ft = bits::field(bytes, 20, 32).and_then(adsb::ac13_ft);
-                Ok(decoded(icao, 0, Message::Altitude { alt_ft }))
+                Ok(decoded(icao, 0, Message::Altitude { alt_ft }, 0))
             }
             5 | 21 => {
                 let icao = self.address_parity(bytes, now_s)?;
                 let id13 = bits::field(bytes, 20, 32).ok_or(Skip::WrongLength)?;
                 let squawk = adsb::id13_squawk(id13);
-                Ok(decoded(icao, 0, Message::Squawk { squawk }))
+                Ok(decoded(icao, 0, Message::Squawk { squawk }, 0))
             }
             11 => {
                 let (icao, capability) = self.all_call(bytes, now_s)?;
-                Ok(decoded(icao, 0, Message::AllCall { capability }))
+                Ok(decoded(icao, 0, Message::AllCall { capability }, 0))
             }
             17 | 18 => {
-                let (icao, corrected, msg) = self.extended_squitter(bytes, df, now_s)?;
-                Ok(decoded(icao, corrected, msg))
+                let (icao, corrected, msg, me) = self.extended_squitter(bytes, df, now_s)?;
+                Ok(decoded(icao, corrected, msg, me))
             }
             _ => Err(Skip::UnsupportedDf),
         }
@@ -511,13 +516,13 @@ impl Decoder {
         Ok((address, capability))
     }
 
-    /// DF17/18: (AA, bits repaired, message).
+    /// DF17/18: (AA, bits repaired, message, the ME field's 56 bits).
     fn extended_squitter(
         &mut self,
         bytes: &[u8],
         df: u8,
         now_s: f64,
-    ) -> Result<(u32, u8, Message), Skip> {
+    ) -> Result<(u32, u8, Message, u64), Skip> {
         let mut frame: [u8; 14] = bytes.try_into().map_err(|_| Skip::WrongLength)?;
         let syndrome = crc::syndrome(&frame).ok_or(Skip::WrongLength)?;
         let mut repaired_bit = None;
@@ -558,7 +563,7 @@ impl Decoder {
             self.remember(address, now_s);
         }
         let corrected = u8::from(repaired_bit.is_some());
-        Ok((address, corrected, adsb::decode_me(me)))
+        Ok((address, corrected, adsb::decode_me(me), me.raw()))
     }
 
     fn remember(&mut self, address: u32, now_s: f64) {

@@ -149,10 +149,7 @@ fn lax_nacp10_taken_literally_is_overconfident() {
 #[test]
 fn afr34zg_velocities_lag_its_positions_by_about_a_second() {
     use adsb_tracker::eval::latency;
-    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("fixtures")
-        .join("afr34zg-cdg-tls.jsonl");
-    let frames = consistency::read_frames_at(&path, None, 1000.0).unwrap();
+    let frames = afr34zg_frames();
     let all = latency::reports(&frames);
     let o = all
         .values()
@@ -173,10 +170,7 @@ fn afr34zg_velocities_lag_its_positions_by_about_a_second() {
 /// (`tracker.imm.velocity_lag_s = 1.07`, this file's figure above) to 1.06.
 #[test]
 fn afr34zg_turns_are_consistent_with_the_velocity_lag() {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("fixtures")
-        .join("afr34zg-cdg-tls.jsonl");
-    let frames = consistency::read_frames_at(&path, None, 1000.0).unwrap();
+    let frames = afr34zg_frames();
     let median_ct_nis = |learn: bool, lag_s: f64| {
         let mut config = Config::default_config().unwrap();
         config.tracker.hybrid.learn_velocity_lag = learn;
@@ -200,4 +194,11 @@ fn afr34zg_turns_are_consistent_with_the_velocity_lag() {
     assert!(current > 2.4, "{report}");
     assert!(learnt < 1.8, "{report}");
     assert!((0.8..1.3).contains(&given), "{report}");
+}
+
+fn afr34zg_frames() -> Vec<adsb_tracker::feed::RawFrame> {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("fixtures")
+        .join("afr34zg-cdg-tls.jsonl");
+    consistency::read_frames_at(&path, None, 1000.0).unwrap()
 }

@@ -854,6 +854,21 @@ mod tests {
         )
     }
 
+    /// A velocity frame: 447 kt north, level, NACv 2 (the positions' 230 m/s).
+    fn northbound_velocity() -> [u8; 14] {
+        use crate::sim::encode::{airborne_velocity, VelocityReport};
+        airborne_velocity(
+            ICAO,
+            &VelocityReport {
+                ve_kt: 0.0,
+                vn_kt: 447.0,
+                vrate_fpm: 0.0,
+                vrate_source: crate::decode::VerticalRateSource::Baro,
+                nac_v: 2,
+            },
+        )
+    }
+
     /// One frame's bytes at `t_s`, decoded.
     fn frame(dec: &mut Decoder, t_s: f64, bytes: &[u8]) -> Decoded {
         RawFrame::new(t_s, bytes, None)
@@ -895,7 +910,7 @@ mod tests {
     /// (its message count, its callsign) still reaches the snapshot.
     #[test]
     fn an_ended_tracks_snapshot_keeps_counting_messages() {
-        use crate::sim::encode::{airborne_velocity, identification, VelocityReport};
+        use crate::sim::encode::identification;
         let (mut ac, mut counts, mut dec, ctx, slot) = default_aircraft();
         let mut one = |ac: &mut Aircraft, d: &[Decoded]| {
             for d in d {
@@ -907,16 +922,7 @@ mod tests {
         let first = one(&mut ac, &positions(&mut dec, 100.0, 48.0, 2.0, 10));
         assert_eq!(first.facts.messages, 10);
         // A velocity report 200 s later ends the track (past the gap rule): no estimate.
-        let velocity = airborne_velocity(
-            ICAO,
-            &VelocityReport {
-                ve_kt: 0.0,
-                vn_kt: 447.0,
-                vrate_fpm: 0.0,
-                vrate_source: crate::decode::VerticalRateSource::Baro,
-                nac_v: 2,
-            },
-        );
+        let velocity = northbound_velocity();
         let ended = one(&mut ac, &[frame(&mut dec, 300.0, &velocity)]);
         assert!(ac.tracker.estimate().is_none());
         assert_eq!(ended.estimate, first.estimate);
@@ -961,17 +967,7 @@ mod tests {
     /// used.
     #[test]
     fn a_report_heard_twice_is_used_once() {
-        use crate::sim::encode::{airborne_velocity, VelocityReport};
-        let velocity = airborne_velocity(
-            ICAO,
-            &VelocityReport {
-                ve_kt: 0.0,
-                vn_kt: 447.0,
-                vrate_fpm: 0.0,
-                vrate_source: crate::decode::VerticalRateSource::Baro,
-                nac_v: 2,
-            },
-        );
+        let velocity = northbound_velocity();
         // Positions every 0.5 s, each followed by a velocity report 0.25 s later.
         let reports = |dec: &mut Decoder| -> Vec<Decoded> {
             positions(dec, 100.0, 48.0, 2.0, 20)

@@ -343,9 +343,10 @@ impl HybridTracker {
             m.position.as_ref().map(|o| (o.value.x, o.value.y)),
             m.velocity.as_ref().map(|o| (o.value.x, o.value.y)),
         );
-        if let Some(lag_s) = lag.lag_s() {
-            self.imm.set_velocity_lag(lag_s);
-        }
+        // Until it is learnt (or should the evidence fall back under the bound), the
+        // configured lag.
+        self.imm
+            .set_velocity_lag(lag.lag_s().unwrap_or(self.params.imm.velocity_lag_s));
     }
 
     /// Whether the IMM runs.

@@ -449,6 +449,7 @@ pub fn run_pipeline(config: &Config, frames: &[RawFrame], fix_crc: bool) -> Pipe
         },
         tracker: adsb_tracker::daemon::build_tracker,
         tracker_config: config.tracker.clone(),
+        duplicate_window_s: config.decode.duplicate_window_s,
     };
     let horizons = &config.tracker.prediction_horizons_s;
     let mut fixer = CrcFixer::default();

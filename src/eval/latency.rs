@@ -23,25 +23,18 @@
 //! about a second (the same bytes two or three squitters running, in turns too), which is
 //! half of it on average.
 
+use crate::daemon::aircraft::{FT_TO_M, KT_TO_MPS};
 use crate::decode::cpr::{CprConfig, CprDecoder, PositionFix};
 use crate::decode::{Decoder, DecoderConfig, Icao, Message};
 use crate::feed::RawFrame;
 use crate::track::geo::LocalFrame;
-use nalgebra::{SMatrix, SVector};
+use crate::track::lag::WindowFit;
 use std::collections::BTreeMap;
 
-/// Length of one fitting window, s: long enough to hold a turn's change of velocity, short
-/// enough that a GNSS error wandering over minutes is nearly a line within it.
-pub const WINDOW_S: f64 = 60.0;
-/// Smallest change of the velocity vector within a window (the largest distance between
-/// two of its velocity reports) for the window to count, m/s: a 10° turn at 120 m/s.
-pub const MIN_VELOCITY_CHANGE_MPS: f64 = 20.0;
+/// The window and the velocity change a window must see: the same as the tracker's learner.
+pub use crate::track::lag::{MIN_VELOCITY_CHANGE_MPS, WINDOW_S};
 /// Fewest position reports in a window for it to count.
 const MIN_POSITIONS: usize = 30;
-/// Knots to metres per second.
-const KT_TO_MPS: f64 = 1852.0 / 3600.0;
-/// Feet to metres.
-const FT_TO_M: f64 = 0.3048;
 
 /// One aircraft's estimate.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -203,48 +196,19 @@ fn window_fit(r: &Reports, t0: f64, t1: f64) -> Option<(f64, f64)> {
     // (0.16 % at 10 km: in a turn's curve, enough to move λ).
     let mean = |f: fn(&&(f64, f64, f64, f64)) -> f64| positions.iter().map(f).sum::<f64>() / n;
     let frame = LocalFrame::new(mean(|p| p.1), mean(|p| p.2), mean(|p| p.3));
-    // Normal equations of r = A x, x = (c_e, d_e, c_n, d_n, λ).
-    let mut ata = SMatrix::<f64, 5, 5>::zeros();
-    let mut atb = SVector::<f64, 5>::zeros();
-    let mut rows = Vec::with_capacity(2 * positions.len());
+    // The fit the tracker's learner keeps per aircraft (`track::lag::WindowFit`).
+    let mut fit = WindowFit::default();
     for &&(t, lat, lon, h) in &positions {
-        // The velocity report interval holding t, and where t falls in it.
+        // The velocity report interval holding t.
         let k = vel.partition_point(|v| v.0 <= t).clamp(1, vel.len() - 1);
         let (a, b) = (vel.get(k - 1)?, vel.get(k)?);
-        let ia = integral.get(k - 1)?;
-        let dt = b.0 - a.0;
-        if dt <= 0.0 {
+        if b.0 <= a.0 {
             continue;
         }
-        let w = (t - a.0) / dt;
-        let (ve, vn) = (a.1 + w * (b.1 - a.1), a.2 + w * (b.2 - a.2));
-        // The integral up to t: the trapezoid from a to t under the interpolated velocity.
-        let s = t - a.0;
-        let (int_e, int_n) = (
-            ia.0 + s * (a.1 + 0.5 * w * (b.1 - a.1)),
-            ia.1 + s * (a.2 + 0.5 * w * (b.2 - a.2)),
-        );
         let enu = frame.to_enu(lat, lon, h);
-        let (e, nn) = (enu.x, enu.y);
-        let tau = t - t_mean;
-        rows.push((SVector::<f64, 5>::from([1.0, tau, 0.0, 0.0, ve]), e - int_e));
-        rows.push((
-            SVector::<f64, 5>::from([0.0, 0.0, 1.0, tau, vn]),
-            nn - int_n,
-        ));
+        fit.add_position(t - t_mean, (t, enu.x, enu.y), a, b, *integral.get(k - 1)?);
     }
-    for (a, b) in &rows {
-        ata += a * a.transpose();
-        atb += a * *b;
-    }
-    let chol = ata.cholesky()?;
-    let x = chol.solve(&atb);
-    let dof = rows.len().checked_sub(5).filter(|&d| d > 0)? as f64;
-    let ss: f64 = rows.iter().map(|(a, b)| (b - a.dot(&x)).powi(2)).sum();
-    let inv = chol.inverse();
-    let var = ss / dof * inv[(4, 4)];
-    let lambda = x[4];
-    (lambda.is_finite() && var.is_finite() && var > 0.0).then(|| (lambda, var.sqrt()))
+    fit.fit()
 }
 
 #[cfg(test)]

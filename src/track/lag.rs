@@ -15,9 +15,11 @@
 
 use nalgebra::{Matrix5, Vector5};
 
-/// Length of one window, s (as `eval::latency::WINDOW_S`).
+/// Length of one window, s: long enough to hold a turn's change of velocity, short enough
+/// that a GNSS error wandering over minutes is nearly a line within it.
 pub const WINDOW_S: f64 = 60.0;
-/// Smallest change of the velocity within a window for it to count, m/s.
+/// Smallest change of the velocity within a window for it to count, m/s: a 10° turn at
+/// 120 m/s.
 pub const MIN_VELOCITY_CHANGE_MPS: f64 = 20.0;
 /// Largest standard error of a window's λ for it to count, s.
 pub const MAX_WINDOW_SIGMA_S: f64 = 0.1;
@@ -34,9 +36,13 @@ const MIN_POSITIONS: u32 = 30;
 /// Positions held while waiting for the velocity report after them.
 pub const PENDING: usize = 4;
 
-/// The sums of one window's least-squares fit.
+/// One window's least-squares fit (module doc), as the sums its normal equations need: what
+/// the learner keeps per aircraft, and what `eval::latency` fits a recording's windows with.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
-struct Sums {
+pub struct WindowFit {
+    /// The window's first position less the velocity integral there (east, north), m: the
+    /// origin of the sums, so they hold metres, not the distance flown.
+    origin: Option<(f64, f64)>,
     n: u32,
     tau: f64,
     tau2: f64,
@@ -55,9 +61,51 @@ struct Sums {
     r2: f64,
 }
 
-impl Sums {
+impl WindowFit {
+    /// Positions added so far.
+    pub fn positions(&self) -> u32 {
+        self.n
+    }
+
+    /// A position (t, east, north) between velocity reports `a` and `b` (t, east, north m/s;
+    /// a.0 ≤ t ≤ b.0, a.0 < b.0), the integral of the reports up to `a` being `integral_a`
+    /// (east, north, m), `tau` its time from any fixed instant of the window, s: the velocity
+    /// interpolated at t, the integral continued to t by the trapezoid under it.
+    pub fn add_position(
+        &mut self,
+        tau: f64,
+        (t, e, n): (f64, f64, f64),
+        a: &Velocity,
+        b: &Velocity,
+        integral_a: (f64, f64),
+    ) {
+        let w = (t - a.0) / (b.0 - a.0);
+        let (ve, vn) = (a.1 + w * (b.1 - a.1), a.2 + w * (b.2 - a.2));
+        let s = t - a.0;
+        let int_e = integral_a.0 + s * (a.1 + 0.5 * w * (b.1 - a.1));
+        let int_n = integral_a.1 + s * (a.2 + 0.5 * w * (b.2 - a.2));
+        let (e0, n0) = *self.origin.get_or_insert((e - int_e, n - int_n));
+        let (re, rn) = (e - int_e - e0, n - int_n - n0);
+        self.n += 1;
+        self.tau += tau;
+        self.tau2 += tau * tau;
+        self.ve += ve;
+        self.ve_tau += ve * tau;
+        self.ve2 += ve * ve;
+        self.vn += vn;
+        self.vn_tau += vn * tau;
+        self.vn2 += vn * vn;
+        self.re += re;
+        self.re_tau += re * tau;
+        self.re_ve += re * ve;
+        self.rn += rn;
+        self.rn_tau += rn * tau;
+        self.rn_vn += rn * vn;
+        self.r2 += re * re + rn * rn;
+    }
+
     /// λ and its standard error, when the fit is determined.
-    fn fit(&self) -> Option<(f64, f64)> {
+    pub fn fit(&self) -> Option<(f64, f64)> {
         let n = f64::from(self.n);
         // x = (c_e, d_e, c_n, d_n, λ); rows [1, τ, 0, 0, ve] and [0, 0, 1, τ, vn].
         let ata = Matrix5::new(
@@ -107,18 +155,15 @@ impl Sums {
 }
 
 /// A velocity report: time, east and north, m/s.
-type Velocity = (f64, f64, f64);
+pub type Velocity = (f64, f64, f64);
 
 /// One aircraft's learner.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct VelocityLag {
     /// Start of the current window, s (None before the first report).
     window_start_s: Option<f64>,
-    sums: Sums,
-    /// The window's first position (east, north), the origin of its sums, m.
-    origin: Option<(f64, f64)>,
-    /// The last velocity report, and the integral of the reports up to it since the
-    /// window's origin (east, north), m.
+    fit: WindowFit,
+    /// The last velocity report, and the integral of the reports up to it (east, north), m.
     last_velocity: Option<Velocity>,
     integral: (f64, f64),
     /// The velocity extremes of the window, for its change (east min, max, north min, max).
@@ -126,10 +171,12 @@ pub struct VelocityLag {
     /// Positions (t, east, north) waiting for the next velocity report.
     pending: [(f64, f64, f64); PENDING],
     pending_len: usize,
-    /// Σ 1/σ² and Σ λ/σ² over the windows that counted, and their count.
+    /// Σ 1/σ² and Σ λ/σ² over the windows that counted.
     weight: f64,
     weighted_lag: f64,
-    windows: u32,
+    /// The lag they give, once it clears the bound ([`VelocityLag::lag_s`]): worked out when
+    /// a window closes, read on every report.
+    learnt_s: Option<f64>,
 }
 
 impl VelocityLag {
@@ -166,19 +213,14 @@ impl VelocityLag {
         *self = Self {
             weight: self.weight,
             weighted_lag: self.weighted_lag,
-            windows: self.windows,
+            learnt_s: self.learnt_s,
             ..Self::default()
         };
     }
 
     /// The lag to turn velocity reports by, s, once it is learnt (module doc).
     pub fn lag_s(&self) -> Option<f64> {
-        if self.windows == 0 || self.weight <= 0.0 {
-            return None;
-        }
-        let lag = self.weighted_lag / self.weight;
-        let sigma = self.weight.sqrt().recip();
-        (lag - LAG_SIGMAS * sigma >= MIN_LAG_S && lag.is_finite()).then(|| lag.min(MAX_LAG_S))
+        self.learnt_s
     }
 
     /// A velocity report: the pending positions before it are placed between it and the
@@ -206,7 +248,8 @@ impl VelocityLag {
                 if t < a.0 {
                     continue;
                 }
-                self.add_position(t, e, n, &a, &v);
+                let tau = t - self.window_start_s.unwrap_or(t) - 0.5 * WINDOW_S;
+                self.fit.add_position(tau, (t, e, n), &a, &v, self.integral);
             }
             self.pending_len = kept;
             self.integral.0 += 0.5 * (a.1 + v.1) * dt;
@@ -220,53 +263,25 @@ impl VelocityLag {
         self.last_velocity = Some(v);
     }
 
-    /// One position at `t` between velocity reports `a` and `b` into the window's sums.
-    fn add_position(&mut self, t: f64, e: f64, n: f64, a: &Velocity, b: &Velocity) {
-        let dt = b.0 - a.0;
-        let w = (t - a.0) / dt;
-        let (ve, vn) = (a.1 + w * (b.1 - a.1), a.2 + w * (b.2 - a.2));
-        let s = t - a.0;
-        let int_e = self.integral.0 + s * (a.1 + 0.5 * w * (b.1 - a.1));
-        let int_n = self.integral.1 + s * (a.2 + 0.5 * w * (b.2 - a.2));
-        let (e0, n0) = *self.origin.get_or_insert((e - int_e, n - int_n));
-        let (re, rn) = (e - int_e - e0, n - int_n - n0);
-        let tau = t - self.window_start_s.unwrap_or(t) - 0.5 * WINDOW_S;
-        let m = &mut self.sums;
-        m.n += 1;
-        m.tau += tau;
-        m.tau2 += tau * tau;
-        m.ve += ve;
-        m.ve_tau += ve * tau;
-        m.ve2 += ve * ve;
-        m.vn += vn;
-        m.vn_tau += vn * tau;
-        m.vn2 += vn * vn;
-        m.re += re;
-        m.re_tau += re * tau;
-        m.re_ve += re * ve;
-        m.rn += rn;
-        m.rn_tau += rn * tau;
-        m.rn_vn += rn * vn;
-        m.r2 += re * re + rn * rn;
-    }
-
     /// Ends the window: its λ joins the estimate if it counts; the next window starts from
     /// the last velocity report.
     fn close_window(&mut self) {
         let x = self.extremes;
         let change = (x[1] - x[0]).hypot(x[3] - x[2]);
-        if self.sums.n >= MIN_POSITIONS && change >= MIN_VELOCITY_CHANGE_MPS {
-            if let Some((lambda, sigma)) = self.sums.fit() {
+        if self.fit.positions() >= MIN_POSITIONS && change >= MIN_VELOCITY_CHANGE_MPS {
+            if let Some((lambda, sigma)) = self.fit.fit() {
                 if sigma <= MAX_WINDOW_SIGMA_S {
                     let w = 1.0 / (sigma * sigma);
                     self.weight += w;
                     self.weighted_lag += w * lambda;
-                    self.windows += 1;
+                    let lag = self.weighted_lag / self.weight;
+                    let sigma = self.weight.sqrt().recip();
+                    self.learnt_s = (lag - LAG_SIGMAS * sigma >= MIN_LAG_S && lag.is_finite())
+                        .then(|| lag.min(MAX_LAG_S));
                 }
             }
         }
-        self.sums = Sums::default();
-        self.origin = None;
+        self.fit = WindowFit::default();
         if let Some(v) = self.last_velocity {
             self.extremes = [v.1, v.1, v.2, v.2];
         }
@@ -349,7 +364,7 @@ mod tests {
         assert!(lag.is_some());
         l.new_plane();
         assert_eq!(l.lag_s(), lag);
-        assert_eq!(l.sums, Sums::default());
+        assert_eq!(l.fit, WindowFit::default());
         assert_eq!((l.pending_len, l.last_velocity), (0, None));
         // Non-finite reports are ignored.
         l.push(f64::NAN, Some((1.0, 2.0)), None);

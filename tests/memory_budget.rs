@@ -37,6 +37,14 @@ fn what_an_aircraft_holds_stays_within_its_budget() {
     );
     assert!(size_of::<Gate>() <= 256, "{}", size_of::<Gate>());
     assert!(size_of::<CvKalman>() <= 800, "{}", size_of::<CvKalman>());
+    // What the router queues per message between two batches (`decode::Heard`): a busy
+    // second's messages of 1000 aircraft. 104 bytes each as decoded messages, which
+    // outgrew the second-level cache (the type's doc).
+    assert!(
+        size_of::<adsb_tracker::decode::Heard>() <= 24,
+        "{}",
+        size_of::<adsb_tracker::decode::Heard>()
+    );
     // Trackers built with one tuning share it: the same tracker twice costs no second copy
     // (a pointer each).
     let (a, b) = (HybridTracker::default(), HybridTracker::default());

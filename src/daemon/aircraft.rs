@@ -571,7 +571,7 @@ pub struct TaskContext {
 /// One channel message to an aircraft task: its messages of one feed batch.
 #[derive(Debug)]
 pub struct AircraftBatch {
-    pub msgs: Vec<Decoded>,
+    pub msgs: Vec<crate::decode::Heard>,
     /// When the feed batch they came in was read (or, for a paced replay, was due): the
     /// start of the latency the task records when it has published.
     pub arrived: Instant,
@@ -620,7 +620,8 @@ pub async fn run_task(
             },
             _ = &mut cancelled => break,
         };
-        for d in &batch.msgs {
+        for h in &batch.msgs {
+            let d = &h.decoded();
             let updated = aircraft.handle(d, &mut counts);
             if updated
                 && (d.time_s >= next_trail_t_s

@@ -12,7 +12,7 @@
 
 use super::aircraft::{run_task, Aircraft, AircraftBatch, AircraftConfig, TaskContext};
 use super::stats::Stats;
-use crate::decode::{DecodeStats, Decoded, Decoder, DecoderConfig, Icao};
+use crate::decode::{DecodeStats, Decoder, DecoderConfig, Heard, Icao};
 use crate::feed::tcp::FrameBatch;
 use rustc_hash::FxHashMap;
 use serde::Deserialize;
@@ -50,7 +50,7 @@ struct Handle {
     /// Wall-clock arrival of its last batch.
     last_arrival: Instant,
     /// Messages of the batch being routed (no allocation between batches).
-    pending: Vec<Decoded>,
+    pending: Vec<Heard>,
     /// Messages it had in the last batch: the room reserved for the next one.
     last_batch_len: usize,
 }
@@ -141,7 +141,7 @@ pub async fn run_router(
         stats.frames_in.inc_by(batch.frames.len() as u64);
         for frame in &batch.frames {
             now_s = now_s.max(frame.time_s);
-            let Ok(d) = decoder.decode(frame) else {
+            let Ok(d) = decoder.accept(frame) else {
                 continue;
             };
             let handle = match aircraft.entry(d.icao) {
@@ -407,7 +407,6 @@ fn retire_wall_idle(aircraft: &mut FxHashMap<Icao, Handle>, idle: Duration, ctx:
 mod tests {
     use super::*;
     use crate::daemon::registry::Registry;
-    use crate::decode::Message;
     use crate::output::UpdateFeed;
     use tokio_util::sync::CancellationToken;
 
@@ -438,14 +437,13 @@ mod tests {
 
     fn fill(h: &mut Handle, n: usize) {
         h.pending = (0..n)
-            .map(|k| Decoded {
+            .map(|k| Heard {
                 time_s: k as f64,
+                payload: 5,
                 icao: Icao(0x4840d6),
                 df: 11,
                 signal: None,
                 corrected_bits: 0,
-                msg: Message::AllCall { capability: 5 },
-                me: 0,
             })
             .collect();
     }

@@ -621,6 +621,7 @@ pub async fn run_task(
             _ = &mut cancelled => break,
         };
         for h in &batch.msgs {
+            // The message is read here, not in the router (`decode::Heard`).
             let d = &h.decoded();
             let updated = aircraft.handle(d, &mut counts);
             if updated

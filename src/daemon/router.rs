@@ -1,9 +1,11 @@
-//! The router: decodes frame batches and hands each aircraft its messages.
+//! The router: checks frame batches and hands each aircraft its messages.
 //!
 //! One router task owns the decoder (CRC, recent-address filter) and the map from ICAO
-//! address to aircraft channel, so routing takes no lock. Messages of one batch are gathered
-//! per aircraft and sent as one channel message each: a channel hop and a task wake-up per
-//! frame would cost more than the decoding.
+//! address to aircraft channel, so routing takes no lock. It passes on what the decoder
+//! accepted as a [`Heard`] (the frame's payload, 24 bytes); each aircraft's task reads the
+//! message itself (the type's doc says why). Messages of one batch are gathered per aircraft
+//! and sent as one channel message each: a channel hop and a task wake-up per frame would
+//! cost more than the decoding.
 //!
 //! Nothing is dropped by default ([`Overload::Backpressure`]): when an aircraft's channel is
 //! full the router waits for room, its own input channel fills, the feed stops reading its

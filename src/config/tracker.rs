@@ -176,7 +176,7 @@ pub struct HybridConfig {
     /// Learn each aircraft's measurement noise from its innovations (`track::noise`).
     pub learn_noise: bool,
     /// Learn how much older each aircraft's velocity reports are than its positions
-    /// (`track::lag`), for the IMM's CT modes.
+    /// (`track::lag`), for the IMM's CT modes: the hybrid's and the plain `imm`'s.
     pub learn_velocity_lag: bool,
     /// Bounds of the learned factor on the declared covariance.
     pub noise_scale_limits: [f64; 2],
@@ -472,6 +472,7 @@ impl TrackerConfig {
         };
         p.init.max_gap_s = self.max_gap_s;
         p.noise = self.noise_params()?;
+        p.learn_velocity_lag = self.hybrid.learn_velocity_lag;
         Ok(p)
     }
 

@@ -1243,7 +1243,7 @@ pub(crate) fn estimate_of<const N: usize>(
 pub const IMM_NAME: &str = "imm";
 
 /// Tuning of [`ImmTracker`].
-#[derive(Clone, Copy, Debug, PartialEq, Default)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ImmTrackerParams {
     /// The IMM.
     pub imm: ImmParams,
@@ -1254,6 +1254,23 @@ pub struct ImmTrackerParams {
     /// The measurement noise learned per aircraft ([`super::noise`]), from the CV model's
     /// innovations while CV holds at least [`LEARN_CV_PROBABILITY`].
     pub noise: NoiseParams,
+    /// Learn how much older the aircraft's velocity reports are than its positions
+    /// ([`super::lag::VelocityLag`]) and let the CT modes allow for it, as the hybrid does
+    /// (`HybridParams::learn_velocity_lag`); until a lag is learnt,
+    /// [`ImmParams::velocity_lag_s`]. Default true.
+    pub learn_velocity_lag: bool,
+}
+
+impl Default for ImmTrackerParams {
+    fn default() -> Self {
+        Self {
+            imm: ImmParams::default(),
+            init: InitParams::default(),
+            axes: AxisThresholds::default(),
+            noise: NoiseParams::default(),
+            learn_velocity_lag: true,
+        }
+    }
 }
 
 /// The plain IMM learns the measurement noise only while its CV mode is this probable: the
@@ -1294,6 +1311,9 @@ pub struct ImmTracker {
     nis: super::nis::NisWindow,
     /// The aircraft's learned measurement noise, kept across restarts.
     noise: NoiseLearner,
+    /// The age of its velocity reports, learned (`learn_velocity_lag`); boxed, made at the
+    /// first report, kept across restarts.
+    lag: Option<Box<super::lag::VelocityLag>>,
 }
 
 impl Default for ImmTracker {
@@ -1311,12 +1331,30 @@ impl ImmTracker {
             init: Initiator::new(params.init, &params.imm.models.cv),
             nis: super::nis::NisWindow::default(),
             noise: NoiseLearner::default(),
+            lag: None,
         }
     }
 
     /// The estimator.
     pub fn imm(&self) -> &Imm {
         &self.imm
+    }
+
+    /// Gives `m` to the velocity-lag learner, and the IMM the lag once it is learnt (the
+    /// hybrid's `learn_lag`). Reports out of time order are left out (the tracker refuses
+    /// them too).
+    fn learn_lag(&mut self, m: &Measurement) {
+        if self.init.track_t_s().is_some_and(|t| m.t_s < t) {
+            return;
+        }
+        let lag = self.lag.get_or_insert_with(Box::default);
+        lag.push(
+            m.t_s,
+            m.position.as_ref().map(|o| (o.value.x, o.value.y)),
+            m.velocity.as_ref().map(|o| (o.value.x, o.value.y)),
+        );
+        self.imm
+            .set_velocity_lag(lag.lag_s().unwrap_or(self.params.imm.velocity_lag_s));
     }
 
     fn info(&self) -> EstimateInfo {
@@ -1374,11 +1412,17 @@ pub(crate) fn labels_of_mode(mode: ImmMode, x: &State9, axes: &AxisThresholds) -
 }
 
 impl Tracker for ImmTracker {
-    /// A new track; the learned measurement noise is kept (it is the aircraft's).
+    /// A new track; the learned measurement noise and velocity lag are kept (they are the
+    /// aircraft's).
     fn reset(&mut self) {
         let noise = self.noise;
+        let lag = self.lag.take();
         *self = Self::new(self.params);
         self.noise = noise;
+        self.lag = lag.map(|mut l| {
+            l.new_plane();
+            l
+        });
     }
 
     fn set_accuracy_declared(&mut self, position: bool, velocity: bool) {
@@ -1392,6 +1436,9 @@ impl Tracker for ImmTracker {
 
     fn update(&mut self, m: &Measurement) -> Result<(), TrackError> {
         let track_t_s = self.init.track_t_s();
+        if self.params.learn_velocity_lag {
+            self.learn_lag(m);
+        }
         match self.init.offer(m)? {
             Start::Waiting => Ok(()),
             Start::New(start) => {

@@ -331,22 +331,14 @@ impl HybridTracker {
         &self.params
     }
 
-    /// Gives `m` to the velocity-lag learner, and the IMM the lag once it is learnt. Reports
-    /// out of time order are left out (the tracker refuses them too).
+    /// Gives `m` to the velocity-lag learner, and the IMM the lag to use
+    /// ([`super::lag::learn`]).
     fn learn_lag(&mut self, m: &Measurement) {
-        if self.init.track_t_s().is_some_and(|t| m.t_s < t) {
-            return;
+        let track_t_s = self.init.track_t_s();
+        let configured_s = self.params.imm.velocity_lag_s;
+        if let Some(lag_s) = super::lag::learn(&mut self.lag, m, track_t_s, configured_s) {
+            self.imm.set_velocity_lag(lag_s);
         }
-        let lag = self.lag.get_or_insert_with(Box::default);
-        lag.push(
-            m.t_s,
-            m.position.as_ref().map(|o| (o.value.x, o.value.y)),
-            m.velocity.as_ref().map(|o| (o.value.x, o.value.y)),
-        );
-        // Until it is learnt (or should the evidence fall back under the bound), the
-        // configured lag.
-        self.imm
-            .set_velocity_lag(lag.lag_s().unwrap_or(self.params.imm.velocity_lag_s));
     }
 
     /// Whether the IMM runs.

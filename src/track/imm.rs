@@ -1340,21 +1340,14 @@ impl ImmTracker {
         &self.imm
     }
 
-    /// Gives `m` to the velocity-lag learner, and the IMM the lag once it is learnt (the
-    /// hybrid's `learn_lag`). Reports out of time order are left out (the tracker refuses
-    /// them too).
+    /// Gives `m` to the velocity-lag learner, and the IMM the lag to use
+    /// ([`super::lag::learn`], as the hybrid does).
     fn learn_lag(&mut self, m: &Measurement) {
-        if self.init.track_t_s().is_some_and(|t| m.t_s < t) {
-            return;
+        let track_t_s = self.init.track_t_s();
+        let configured_s = self.params.imm.velocity_lag_s;
+        if let Some(lag_s) = super::lag::learn(&mut self.lag, m, track_t_s, configured_s) {
+            self.imm.set_velocity_lag(lag_s);
         }
-        let lag = self.lag.get_or_insert_with(Box::default);
-        lag.push(
-            m.t_s,
-            m.position.as_ref().map(|o| (o.value.x, o.value.y)),
-            m.velocity.as_ref().map(|o| (o.value.x, o.value.y)),
-        );
-        self.imm
-            .set_velocity_lag(lag.lag_s().unwrap_or(self.params.imm.velocity_lag_s));
     }
 
     fn info(&self) -> EstimateInfo {

@@ -36,6 +36,28 @@ const MIN_POSITIONS: u32 = 30;
 /// Positions held while waiting for the velocity report after them.
 pub const PENDING: usize = 4;
 
+/// A tracker's learner at work: made (boxed) at the aircraft's first report, given `m`
+/// unless `m` is older than the track at `track_t_s` (the tracker refuses such a report
+/// too). Returns the lag the IMM's CT modes are to use, the learnt one or until then
+/// `configured_s`; `None` for a report left out. What the hybrid and the plain IMM share.
+pub fn learn(
+    learner: &mut Option<Box<VelocityLag>>,
+    m: &super::Measurement,
+    track_t_s: Option<f64>,
+    configured_s: f64,
+) -> Option<f64> {
+    if track_t_s.is_some_and(|t| m.t_s < t) {
+        return None;
+    }
+    let lag = learner.get_or_insert_with(Box::default);
+    lag.push(
+        m.t_s,
+        m.position.as_ref().map(|o| (o.value.x, o.value.y)),
+        m.velocity.as_ref().map(|o| (o.value.x, o.value.y)),
+    );
+    Some(lag.lag_s().unwrap_or(configured_s))
+}
+
 /// One window's least-squares fit (module doc), as the sums its normal equations need: what
 /// the learner keeps per aircraft, and what `eval::latency` fits a recording's windows with.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]

@@ -31,10 +31,9 @@ use crate::track::geo::LocalFrame;
 use crate::track::lag::WindowFit;
 use std::collections::BTreeMap;
 
-/// The window and the velocity change a window must see: the same as the tracker's learner.
-pub use crate::track::lag::{MIN_VELOCITY_CHANGE_MPS, WINDOW_S};
-/// Fewest position reports in a window for it to count.
-const MIN_POSITIONS: usize = 30;
+/// The window, the positions and the velocity change a window must hold: the same as the
+/// tracker's learner.
+pub use crate::track::lag::{MIN_POSITIONS, MIN_VELOCITY_CHANGE_MPS, WINDOW_S};
 
 /// One aircraft's estimate.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -186,7 +185,7 @@ fn window_fit(r: &Reports, t0: f64, t1: f64) -> Option<(f64, f64)> {
         .iter()
         .filter(|p| p.0 >= t0.max(tv0) && p.0 < t1.min(tv1))
         .collect();
-    if positions.len() < MIN_POSITIONS {
+    if positions.len() < MIN_POSITIONS as usize {
         return None;
     }
     let n = positions.len() as f64;

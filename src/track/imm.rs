@@ -1409,13 +1409,10 @@ impl Tracker for ImmTracker {
     /// aircraft's).
     fn reset(&mut self) {
         let noise = self.noise;
-        let lag = self.lag.take();
+        let lag = super::lag::kept_over_restart(self.lag.take());
         *self = Self::new(self.params);
         self.noise = noise;
-        self.lag = lag.map(|mut l| {
-            l.new_plane();
-            l
-        });
+        self.lag = lag;
     }
 
     fn set_accuracy_declared(&mut self, position: bool, velocity: bool) {

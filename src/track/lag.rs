@@ -32,7 +32,7 @@ pub const MIN_LAG_S: f64 = 0.1;
 /// Largest lag used, s.
 pub const MAX_LAG_S: f64 = 3.0;
 /// Fewest positions in a window for it to count.
-const MIN_POSITIONS: u32 = 30;
+pub const MIN_POSITIONS: u32 = 30;
 /// Positions held while waiting for the velocity report after them.
 pub const PENDING: usize = 4;
 
@@ -58,6 +58,15 @@ pub fn learn(
     Some(lag.lag_s().unwrap_or(configured_s))
 }
 
+/// A tracker's learner when its track restarts ([`VelocityLag::new_plane`]): what the
+/// hybrid and the plain IMM keep of it.
+pub fn kept_over_restart(learner: Option<Box<VelocityLag>>) -> Option<Box<VelocityLag>> {
+    learner.map(|mut l| {
+        l.new_plane();
+        l
+    })
+}
+
 /// One window's least-squares fit (module doc), as the sums its normal equations need: what
 /// the learner keeps per aircraft, and what `eval::latency` fits a recording's windows with.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -68,19 +77,32 @@ pub struct WindowFit {
     n: u32,
     tau: f64,
     tau2: f64,
-    ve: f64,
-    ve_tau: f64,
-    ve2: f64,
-    vn: f64,
-    vn_tau: f64,
-    vn2: f64,
-    re: f64,
-    re_tau: f64,
-    re_ve: f64,
-    rn: f64,
-    rn_tau: f64,
-    rn_vn: f64,
+    /// The sums of each horizontal axis (east, north).
+    axes: [AxisSums; 2],
+    /// Σ (r_e² + r_n²).
     r2: f64,
+}
+
+/// One axis's sums of [`WindowFit`]: its velocity v and residual r against τ.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+struct AxisSums {
+    v: f64,
+    v_tau: f64,
+    v2: f64,
+    r: f64,
+    r_tau: f64,
+    r_v: f64,
+}
+
+impl AxisSums {
+    fn add(&mut self, tau: f64, v: f64, r: f64) {
+        self.v += v;
+        self.v_tau += v * tau;
+        self.v2 += v * v;
+        self.r += r;
+        self.r_tau += r * tau;
+        self.r_v += r * v;
+    }
 }
 
 impl WindowFit {
@@ -111,18 +133,9 @@ impl WindowFit {
         self.n += 1;
         self.tau += tau;
         self.tau2 += tau * tau;
-        self.ve += ve;
-        self.ve_tau += ve * tau;
-        self.ve2 += ve * ve;
-        self.vn += vn;
-        self.vn_tau += vn * tau;
-        self.vn2 += vn * vn;
-        self.re += re;
-        self.re_tau += re * tau;
-        self.re_ve += re * ve;
-        self.rn += rn;
-        self.rn_tau += rn * tau;
-        self.rn_vn += rn * vn;
+        let [east, north] = &mut self.axes;
+        east.add(tau, ve, re);
+        north.add(tau, vn, rn);
         self.r2 += re * re + rn * rn;
     }
 
@@ -130,40 +143,35 @@ impl WindowFit {
     pub fn fit(&self) -> Option<(f64, f64)> {
         let n = f64::from(self.n);
         // x = (c_e, d_e, c_n, d_n, λ); rows [1, τ, 0, 0, ve] and [0, 0, 1, τ, vn].
+        let [e, nn] = &self.axes;
         let ata = Matrix5::new(
             n,
             self.tau,
             0.0,
             0.0,
-            self.ve, //
+            e.v, //
             self.tau,
             self.tau2,
             0.0,
             0.0,
-            self.ve_tau, //
+            e.v_tau, //
             0.0,
             0.0,
             n,
             self.tau,
-            self.vn, //
+            nn.v, //
             0.0,
             0.0,
             self.tau,
             self.tau2,
-            self.vn_tau, //
-            self.ve,
-            self.ve_tau,
-            self.vn,
-            self.vn_tau,
-            self.ve2 + self.vn2,
+            nn.v_tau, //
+            e.v,
+            e.v_tau,
+            nn.v,
+            nn.v_tau,
+            e.v2 + nn.v2,
         );
-        let atb = Vector5::new(
-            self.re,
-            self.re_tau,
-            self.rn,
-            self.rn_tau,
-            self.re_ve + self.rn_vn,
-        );
+        let atb = Vector5::new(e.r, e.r_tau, nn.r, nn.r_tau, e.r_v + nn.r_v);
         let chol = ata.cholesky()?;
         let x = chol.solve(&atb);
         // Residual sum of squares: bᵀb − xᵀAᵀb at the solution.

@@ -199,6 +199,7 @@ fn afr34zg_turns_are_consistent_with_the_velocity_lag() {
         let report = format!(
             "{tracker}: {n} CT updates: NIS/dof {current:.2}, learnt {learnt:.2}, given {given:.2}"
         );
+        eprintln!("{report}");
         assert!(n > min_n, "{report}");
         assert!(current > current_above, "{report}");
         assert!(learnt < learnt_under, "{report}");

@@ -39,6 +39,9 @@ pub struct StateRecord {
     pub filter: String,
     pub diverging: bool,
     pub divergence_events: u64,
+    /// Absent from a peer of an older build: 0.
+    #[serde(default)]
+    pub outlier_positions: u64,
     pub turn: Option<String>,
     pub lateral: String,
     pub speed: String,
@@ -104,6 +107,7 @@ pub fn encode(p: &Published) -> Vec<u8> {
         filter: e.filter.to_string(),
         diverging: e.diverging,
         divergence_events: e.divergence_events,
+        outlier_positions: e.outlier_positions,
         turn: track.turn.map(str::to_string),
         lateral: track.lateral.to_string(),
         speed: track.speed.to_string(),
@@ -183,6 +187,7 @@ pub fn decode(bytes: &[u8]) -> Result<Published, StateError> {
             filter: filter_name(&s.filter),
             diverging: s.diverging,
             divergence_events: s.divergence_events,
+            outlier_positions: s.outlier_positions,
             turn,
             lateral,
             speed,

@@ -10,6 +10,7 @@ use crate::track::gate::{GateParams, GATE_CAPACITY};
 use crate::track::hybrid::HybridParams;
 use crate::track::imm::{ImmParams, ImmTrackerParams, N_MODES};
 use crate::track::noise::NoiseParams;
+use crate::track::outlier::OutlierParams;
 use serde::Deserialize;
 
 #[derive(Clone, Debug, Deserialize, PartialEq)]
@@ -183,6 +184,12 @@ pub struct HybridConfig {
     /// An innovation's εᵀε is winsorised at this many times Tr(S) before the learner
     /// averages it (`NoiseParams::outlier_ratio`).
     pub noise_outlier_ratio: f64,
+    /// Position reports out of their time set aside (`track::outlier`): the horizontal NIS
+    /// above which (0: never), how many in a row at most, and below which share of recent
+    /// position reports above it.
+    pub outlier_nis: f64,
+    pub outlier_max_in_a_row: u32,
+    pub outlier_max_share: f64,
 }
 
 /// `v` finite and within `lo..=hi` (`lo_open`: `lo` itself excluded).
@@ -473,6 +480,7 @@ impl TrackerConfig {
         p.init.max_gap_s = self.max_gap_s;
         p.noise = self.noise_params()?;
         p.learn_velocity_lag = self.hybrid.learn_velocity_lag;
+        p.outliers = self.outlier_params()?;
         Ok(p)
     }
 
@@ -525,7 +533,30 @@ impl TrackerConfig {
         p.variable_structure = h.variable_structure && !paper002_gate;
         p.noise = self.noise_params()?;
         p.learn_velocity_lag = h.learn_velocity_lag;
+        p.outliers = self.outlier_params()?;
         Ok(p)
+    }
+
+    /// The outlier test of `hybrid` and `imm` (`[tracker.hybrid] outlier_*` keys).
+    fn outlier_params(&self) -> Result<OutlierParams, ConfigError> {
+        let h = &self.hybrid;
+        Ok(OutlierParams {
+            nis: check("tracker.hybrid.outlier_nis", h.outlier_nis, 0.0, false, 1.0e6)?,
+            max_in_a_row: count(
+                "tracker.hybrid.outlier_max_in_a_row",
+                h.outlier_max_in_a_row as usize,
+                0,
+                100,
+            )? as u32,
+            max_share: check(
+                "tracker.hybrid.outlier_max_share",
+                h.outlier_max_share,
+                0.0,
+                false,
+                1.0,
+            )?,
+            ..OutlierParams::default()
+        })
     }
 
     /// The learned measurement noise of `hybrid` and `imm` (`[tracker.hybrid]` keys).

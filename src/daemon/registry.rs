@@ -93,6 +93,10 @@ pub struct TrackState {
     /// 1-sigma horizontal velocity uncertainty, m/s.
     pub vel_sigma_mps: f64,
     pub divergence_events: u64,
+    /// Position reports the tracker set aside as out of their time (a stale fix, another
+    /// receiver's clock: `track::outlier`), over the aircraft's life. They count in
+    /// `positions_accepted` too: the decoder accepted them.
+    pub outlier_positions: u64,
     pub mode_probabilities: ModeProbabilities,
     pub callsign: Option<String>,
     pub squawk: Option<String>,
@@ -251,6 +255,7 @@ impl Published {
             diverging: est.diverging,
             vel_sigma_mps: est.vel_sigma_mps(),
             divergence_events: est.divergence_events,
+            outlier_positions: est.outlier_positions,
             mode_probabilities: est.mode_probabilities.into(),
             callsign: facts.callsign.map(|c| c.as_str().to_string()),
             squawk: facts.squawk_octal(),

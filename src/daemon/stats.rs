@@ -48,6 +48,9 @@ pub struct Stats {
     /// within `decode.duplicate_window_s` (one transmission heard twice), not given to the
     /// tracker again. Counted in `aircraft_messages` too.
     pub duplicate_reports: Counter,
+    /// Position reports the trackers set aside as out of their time (`track::outlier`):
+    /// counted in `positions_accepted` and `track_updates` too.
+    pub outlier_positions: Counter,
     /// Tracker updates done and refused.
     pub track_updates: Counter,
     pub track_errors: Family<Labels, Counter>,
@@ -238,6 +241,7 @@ impl Stats {
             positions_rejected: Family::default(),
             aircraft_messages: Counter::default(),
             duplicate_reports: Counter::default(),
+            outlier_positions: Counter::default(),
             track_updates: Counter::default(),
             track_errors: Family::default(),
             track_resets_nonfinite: Counter::default(),
@@ -310,6 +314,11 @@ impl Stats {
             "duplicate_reports",
             "Position and velocity reports heard twice (one transmission from two receivers), used once",
             s.duplicate_reports.clone(),
+        );
+        registry.register(
+            "outlier_positions",
+            "Position reports set aside as out of their time (a stale fix, another receiver's clock)",
+            s.outlier_positions.clone(),
         );
         registry.register("track_updates", "Tracker updates", s.track_updates.clone());
         registry.register(
@@ -563,6 +572,7 @@ impl Stats {
             positions_rejected: read(&self.positions_rejected, "reason", POSITION_REJECT_REASONS),
             aircraft_messages: self.aircraft_messages.get(),
             duplicate_reports: self.duplicate_reports.get(),
+            outlier_positions: self.outlier_positions.get(),
             track_updates: self.track_updates.get(),
             track_errors: read(&self.track_errors, "reason", TRACK_ERROR_REASONS),
             track_resets_nonfinite: self.track_resets_nonfinite.get(),
@@ -663,6 +673,8 @@ pub struct StatsSnapshot {
     /// Of them, position and velocity reports heard twice within
     /// `decode.duplicate_window_s` (one transmission from two receivers), used once.
     pub duplicate_reports: u64,
+    /// Position reports the trackers set aside as out of their time (`track::outlier`).
+    pub outlier_positions: u64,
     pub track_updates: u64,
     pub track_errors: BTreeMap<String, u64>,
     /// Tracks reset instead of publishing a non-finite or runaway estimate.
@@ -706,6 +718,8 @@ pub struct Counts {
     pub messages: u64,
     /// See [`Stats::duplicate_reports`].
     pub duplicate_reports: u64,
+    /// See [`Stats::outlier_positions`].
+    pub outlier_positions: u64,
     pub positions_accepted: u64,
     pub track_updates: u64,
     /// By [`POSITION_REJECT_REASONS`] index.
@@ -752,6 +766,9 @@ impl Counts {
         }
         if self.duplicate_reports > 0 {
             stats.duplicate_reports.inc_by(self.duplicate_reports);
+        }
+        if self.outlier_positions > 0 {
+            stats.outlier_positions.inc_by(self.outlier_positions);
         }
         if self.positions_accepted > 0 {
             stats.positions_accepted.inc_by(self.positions_accepted);

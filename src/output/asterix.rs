@@ -960,6 +960,7 @@ mod tests {
                 filter: "kalman-cv",
                 diverging: false,
                 divergence_events: 0,
+                outlier_positions: 0,
                 turn: None,
                 lateral: Default::default(),
                 speed: Default::default(),

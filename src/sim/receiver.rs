@@ -126,6 +126,9 @@ struct Config {
     bias_tau_s: f64,
     position_offset_s: f64,
     velocity_offset_s: f64,
+    stale_interval_s: f64,
+    stale_reports: u32,
+    stale_age_s: f64,
     ref_lat_rad: f64,
     ref_lon_rad: f64,
     ref_m: f64,
@@ -169,6 +172,39 @@ struct Emitter {
     bias: Option<(f64, f64, f64)>,
     /// Its own random stream, so the white-noise draws stay those of the other settings.
     bias_rng: StdRng,
+    /// Stale-position bursts (`stale_position_interval_s`): the flight queried at the
+    /// burst's positions' times (its own cursor), when the next burst starts, s, how many
+    /// reports of the current one are left, and their own random stream.
+    stale: Option<StaleBursts>,
+}
+
+/// The state of an aircraft's stale-position bursts.
+struct StaleBursts {
+    flight: Flight,
+    next_t_s: f64,
+    left: u32,
+    rng: StdRng,
+}
+
+impl StaleBursts {
+    /// An exponentially distributed interval of mean `mean_s`.
+    fn interval(rng: &mut StdRng, mean_s: f64) -> f64 {
+        -mean_s * (1.0 - rng.gen::<f64>()).ln()
+    }
+
+    /// The position this report carries, if it is one of a burst's.
+    fn reported(&mut self, t_s: f64, cfg: &Config) -> Option<TruthState> {
+        if self.left == 0 && t_s >= self.next_t_s {
+            self.left = cfg.stale_reports;
+            self.next_t_s = t_s + Self::interval(&mut self.rng, cfg.stale_interval_s);
+        }
+        if self.left == 0 {
+            return None;
+        }
+        self.left -= 1;
+        let t = (t_s - cfg.position_offset_s - cfg.stale_age_s).max(0.0);
+        Some(self.flight.state_at(t))
+    }
 }
 
 impl Emitter {
@@ -189,6 +225,15 @@ impl Emitter {
             (cfg.position_offset_s != 0.0).then(|| Flight::new(plan.trajectory.clone()));
         let velocity_flight =
             (cfg.velocity_offset_s != 0.0).then(|| Flight::new(plan.trajectory.clone()));
+        let stale = (cfg.stale_interval_s > 0.0).then(|| {
+            let mut rng = StdRng::seed_from_u64(mix(seed ^ mix(index as u64) ^ 0x7374_616c));
+            StaleBursts {
+                next_t_s: StaleBursts::interval(&mut rng, cfg.stale_interval_s),
+                flight: Flight::new(plan.trajectory.clone()),
+                left: 0,
+                rng,
+            }
+        });
         Self {
             icao: plan.icao,
             callsign: plan.callsign,
@@ -202,6 +247,7 @@ impl Emitter {
             velocity_flight,
             bias: None,
             bias_rng: StdRng::seed_from_u64(mix(seed ^ mix(index as u64) ^ 0x6761_7573)),
+            stale,
         }
     }
 
@@ -241,9 +287,11 @@ impl Emitter {
         }
         let frame = match s {
             POSITION => {
-                let reported = match self.position_flight.as_mut() {
-                    Some(f) => f.state_at((t_s - cfg.position_offset_s).max(0.0)),
-                    None => state,
+                let stale = self.stale.as_mut().and_then(|b| b.reported(t_s, cfg));
+                let reported = match (stale, self.position_flight.as_mut()) {
+                    (Some(s), _) => s,
+                    (None, Some(f)) => f.state_at((t_s - cfg.position_offset_s).max(0.0)),
+                    (None, None) => state,
                 };
                 let (be, bn) = self.step_bias(t_s, cfg);
                 let f = self.position_frame(&reported, be, bn, cfg);
@@ -546,6 +594,9 @@ pub fn run(scenario: &Scenario, seed: u64, out_prefix: &Path) -> Result<SimSumma
         bias_tau_s: st.gnss_bias_tau_s,
         position_offset_s: st.position_validity_offset_s,
         velocity_offset_s: st.velocity_validity_offset_s,
+        stale_interval_s: st.stale_position_interval_s,
+        stale_reports: st.stale_position_reports,
+        stale_age_s: st.stale_position_age_s,
         ref_lat_rad: ref_lat,
         ref_lon_rad: scenario.reference.lon_deg.to_radians(),
         ref_m,
@@ -685,6 +736,51 @@ mod tests {
         assert!((rho - (-30.0f64 / tau).exp()).abs() < 0.05, "rho {rho}");
     }
 
+    #[test]
+    fn stale_positions_come_in_bursts_of_their_age() {
+        let text = include_str!("../../fixtures/scenarios/airliner-stale.toml");
+        let scenario = crate::sim::scenario::Scenario::from_toml_str(text).unwrap();
+        let plan = scenario.plan().unwrap().remove(0);
+        let mut cfg = test_config();
+        assert!(Emitter::new(plan.clone(), 0, 7, &cfg).stale.is_none());
+        cfg.stale_interval_s = 48.0;
+        cfg.stale_reports = 2;
+        cfg.stale_age_s = 0.6;
+        cfg.position_offset_s = 0.02;
+        let mut e = Emitter::new(plan, 0, 7, &cfg);
+        let Some(bursts) = e.stale.as_mut() else {
+            panic!("no bursts");
+        };
+        // Reports every 0.5 s over 20 h of feed (the plan's flight ends after 20 minutes: the
+        // truth holds its last state, and the times are what is checked).
+        let (mut bursts_seen, mut run, mut runs_ok) = (0_u32, 0_u32, true);
+        let hours = 20.0;
+        for k in 0..(hours * 7200.0) as u32 {
+            let t = f64::from(k) * 0.5;
+            match bursts.reported(t, &cfg) {
+                Some(state) => {
+                    assert!((state.t_s - (t - 0.62)).abs() < 1e-9, "{} at {t}", state.t_s);
+                    run += 1;
+                }
+                None => {
+                    // A burst may start on the report after the last one ended: runs of
+                    // two reports, or of twice two.
+                    runs_ok &= run % 2 == 0;
+                    bursts_seen += run / 2;
+                    run = 0;
+                }
+            }
+        }
+        assert!(runs_ok, "every burst is two reports");
+        let mean = hours * 3600.0 / f64::from(bursts_seen);
+        // Exponential intervals of mean 48 s, begun at the next report: about 1,500 bursts,
+        // a standard error of 2.6 %.
+        assert!(
+            (mean - 48.3).abs() < 0.08 * 48.3,
+            "mean interval {mean} s over {bursts_seen} bursts"
+        );
+    }
+
     fn test_config() -> Config {
         Config {
             end_tick: 0,
@@ -703,6 +799,9 @@ mod tests {
             bias_tau_s: 60.0,
             position_offset_s: 0.0,
             velocity_offset_s: 0.0,
+            stale_interval_s: 0.0,
+            stale_reports: 2,
+            stale_age_s: 0.6,
             ref_lat_rad: 0.0,
             ref_lon_rad: 0.0,
             ref_m: 6.4e6,

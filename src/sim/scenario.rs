@@ -115,6 +115,28 @@ pub struct Settings {
     /// positions (`afr34zg-cdg-tls.jsonl`: 1.07 s, `eval::latency`). Default 0. -2..=2.
     #[serde(default)]
     pub velocity_validity_offset_s: f64,
+    /// Bursts of stale positions: the mean interval between them, s (exponentially
+    /// distributed; 0 = none, the default). In each burst `stale_position_reports` position
+    /// reports in a row carry the position of `stale_position_age_s` earlier: what the real
+    /// AFR34ZG recording shows about every 48 s (two or three positions 0.5-0.8 s behind
+    /// the flight, innovations of NIS 200-600 where 2 is usual; `docs/evaluation.md`).
+    /// 0 or 1..=100,000.
+    #[serde(default)]
+    pub stale_position_interval_s: f64,
+    /// Position reports per burst. Default 2. 1..=20.
+    #[serde(default = "default_stale_position_reports")]
+    pub stale_position_reports: u32,
+    /// How old a burst's positions are, s. Default 0.6. 0..=5.
+    #[serde(default = "default_stale_position_age_s")]
+    pub stale_position_age_s: f64,
+}
+
+fn default_stale_position_reports() -> u32 {
+    2
+}
+
+fn default_stale_position_age_s() -> f64 {
+    0.6
 }
 
 fn default_gnss_bias_tau_s() -> f64 {
@@ -458,6 +480,26 @@ impl Scenario {
             -2.0,
             2.0,
         )?;
+        if s.stale_position_interval_s != 0.0 {
+            check_range(
+                "settings.stale_position_interval_s",
+                s.stale_position_interval_s,
+                1.0,
+                100_000.0,
+            )?;
+        }
+        check_range(
+            "settings.stale_position_reports",
+            f64::from(s.stale_position_reports),
+            1.0,
+            20.0,
+        )?;
+        check_range(
+            "settings.stale_position_age_s",
+            s.stale_position_age_s,
+            0.0,
+            5.0,
+        )?;
         check_positive("settings.report_period_s", s.report_period_s)?;
         check_positive("settings.truth_period_s", s.truth_period_s)?;
         check_range("settings.truth_period_s", s.truth_period_s, 1e-3, f64::MAX)?;
@@ -719,6 +761,9 @@ pub fn fleet(spec: &FleetSpec) -> Result<Scenario, SimError> {
             gnss_bias_tau_s: default_gnss_bias_tau_s(),
             position_validity_offset_s: 0.0,
             velocity_validity_offset_s: 0.0,
+            stale_position_interval_s: 0.0,
+            stale_position_reports: default_stale_position_reports(),
+            stale_position_age_s: default_stale_position_age_s(),
         },
         aircraft,
     })

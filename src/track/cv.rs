@@ -328,6 +328,7 @@ impl CvKalman {
             filter: NAME,
             diverging: self.diverging,
             divergence_events: self.divergence_events,
+            outlier_positions: 0,
             // The CV filter does not label manoeuvres: it always says straight, constant, level.
             turn: None,
             lateral: super::Lateral::Straight,

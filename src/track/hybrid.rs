@@ -43,6 +43,7 @@ use super::lag::VelocityLag;
 use super::models::{Cv, Matrix6, Matrix9, Model, State6, State9, ACC};
 use super::nis::NisWindow;
 use super::noise::{local_up, NoiseLearner, NoiseParams};
+use super::outlier::{OutlierGate, OutlierParams};
 use super::{
     Estimate, FlightMode, Lateral, Measurement, Observed, PositionPrediction, TrackError, Tracker,
     TurnDirection,
@@ -159,6 +160,11 @@ pub struct HybridParams {
     /// ([`ImmParams::velocity_lag_s`], which applies until then). Default true: a lag is used
     /// once the turns and speed changes seen put it above 0.1 s by three standard errors.
     pub learn_velocity_lag: bool,
+    /// Position reports out of their time set aside ([`super::outlier`]): while velocity
+    /// reports show a straight flight, a position whose horizontal NIS in the CV filter
+    /// is one a consistent filter shows once in 10⁴ reports, at most two in a row and
+    /// while such reports are rare. Default on ([`OutlierParams::default`]).
+    pub outliers: OutlierParams,
 }
 
 impl Default for HybridParams {
@@ -180,6 +186,7 @@ impl Default for HybridParams {
             variable_structure: true,
             noise: NoiseParams::default(),
             learn_velocity_lag: true,
+            outliers: OutlierParams::default(),
         }
     }
 }
@@ -277,6 +284,9 @@ pub struct HybridTracker {
     named_t_s: [f64; N_MODES],
     /// Consecutive divergence events of the CV filter.
     cv_divergence_run: u32,
+    /// Position reports set aside ([`super::outlier`]). Kept over a restart, like the
+    /// noise: what it learns is the feed's.
+    outliers: OutlierGate,
     /// Covariance of the last correction of the velocity estimate, K S Kᵀ (velocity block).
     velocity_correction_cov: Matrix3<f64>,
     diverging: bool,
@@ -316,6 +326,7 @@ impl HybridTracker {
             last_fire_t_s: f64::NEG_INFINITY,
             named_t_s: [f64::NEG_INFINITY; N_MODES],
             cv_divergence_run: 0,
+            outliers: OutlierGate::default(),
             velocity_correction_cov: Matrix3::zeros(),
             diverging: false,
             divergence_events: 0,
@@ -385,8 +396,15 @@ impl HybridTracker {
         }
     }
 
-    /// Runs the current filter on the report.
-    fn filter_step(&mut self, dt_s: f64, obs: &Observation) -> Result<(), TrackError> {
+    /// Runs the current filter on the report. `vouched`: current velocity reports show no
+    /// horizontal manoeuvre, so a position far off the CV filter's line may be set aside
+    /// ([`super::outlier`]); then `Ok(false)`, and the track is as it was.
+    fn filter_step(
+        &mut self,
+        dt_s: f64,
+        obs: &Observation,
+        vouched: bool,
+    ) -> Result<bool, TrackError> {
         let nis = match &mut self.branch {
             Branch::Cv { x, p } => {
                 let (f, q) = MotionModel::<6>::fq(&self.params.cv, dt_s);
@@ -400,6 +418,16 @@ impl HybridTracker {
                     &mut x_new,
                     &mut p_new,
                 )?;
+                // Paper 000's run counts the report either way: a run of reports far off
+                // the line is a divergence, whether or not they were used.
+                self.cv_divergence_run = g.run;
+                if matches!(obs, Observation::Position(_))
+                    && self
+                        .outliers
+                        .set_aside(g.nis_horizontal, vouched, &self.params.outliers)
+                {
+                    return Ok(false);
+                }
                 *x = x_new;
                 *p = p_new;
                 // Published: a divergence the suppressor acts on (paper 000's criterion on
@@ -407,7 +435,6 @@ impl HybridTracker {
                 // filter meets the criterion on a few % of reports, four in a row almost
                 // never (module doc of `divergence`).
                 self.diverging = g.run >= self.params.divergence.confirm;
-                self.cv_divergence_run = g.run;
                 let [pos, vel] = g.blocks;
                 self.noise.learn(&pos, &vel, &self.params.noise);
                 if matches!(obs, Observation::Position(_)) {
@@ -434,7 +461,7 @@ impl HybridTracker {
         if self.diverging {
             self.divergence_events = self.divergence_events.saturating_add(1);
         }
-        Ok(())
+        Ok(true)
     }
 
     /// No velocity report for `velocity_stale_s`: the gate reads the filter's velocity.
@@ -746,6 +773,7 @@ impl HybridTracker {
             filter,
             diverging: self.diverging,
             divergence_events: self.divergence_events,
+            outlier_positions: self.outliers.count(),
             nis: self.nis.stat(),
         }
     }
@@ -768,10 +796,16 @@ impl Tracker for HybridTracker {
     /// A new track; the learned measurement noise is kept (it is the aircraft's).
     fn reset(&mut self) {
         let noise = self.noise;
+        let outliers = self.outliers;
         let lag = super::lag::kept_over_restart(self.lag.take());
         *self = Self::new(*self.params);
         self.noise = noise;
+        self.outliers = outliers;
         self.lag = lag;
+    }
+
+    fn outlier_positions(&self) -> u64 {
+        self.outliers.count()
     }
 
     fn set_accuracy_declared(&mut self, position: bool, velocity: bool) {
@@ -803,7 +837,11 @@ impl Tracker for HybridTracker {
                     return Ok(());
                 };
                 let dt_s = m.t_s - track_t_s.unwrap_or(m.t_s);
-                self.filter_step(dt_s, &obs)?;
+                let f = self.gate.reading().flags;
+                let vouched = !(f.turning() || f.speed_changing()) && !self.velocity_stale(m.t_s);
+                if !self.filter_step(dt_s, &obs, vouched)? {
+                    return Ok(());
+                }
                 self.init.advance(m.t_s);
                 self.feed_gate(m);
                 self.decide(m.t_s);

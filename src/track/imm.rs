@@ -31,6 +31,7 @@ use super::models::{
     Ca, Ch, Chca, Ct, Cv, Matrix6, Matrix9, Model, ResetTail, State6, State9, ACC, POS, VEL,
 };
 use super::noise::{local_up, BlockStat, NoiseLearner, NoiseParams};
+use super::outlier::{OutlierGate, OutlierParams};
 use super::{
     Estimate, FlightMode, Lateral, Measurement, Observed, SpeedTrend, TrackError, Tracker,
     TurnDirection, VerticalTrend,
@@ -1210,6 +1211,7 @@ pub(crate) struct EstimateInfo {
     pub filter: &'static str,
     pub diverging: bool,
     pub divergence_events: u64,
+    pub outlier_positions: u64,
     pub nis: Option<super::nis::NisStat>,
 }
 
@@ -1231,6 +1233,7 @@ pub(crate) fn estimate_of<const N: usize>(
         filter: info.filter,
         diverging: info.diverging,
         divergence_events: info.divergence_events,
+        outlier_positions: info.outlier_positions,
         turn: info.labels.turn,
         lateral: info.labels.lateral,
         speed: info.labels.speed,
@@ -1259,6 +1262,10 @@ pub struct ImmTrackerParams {
     /// (`HybridParams::learn_velocity_lag`); until a lag is learnt,
     /// [`ImmParams::velocity_lag_s`]. Default true.
     pub learn_velocity_lag: bool,
+    /// Position reports out of their time set aside ([`super::outlier`]), judged by the CV
+    /// model's innovation while CV holds at least [`LEARN_CV_PROBABILITY`] and velocity
+    /// reports are current, as the hybrid's CV filter does. Default on.
+    pub outliers: OutlierParams,
 }
 
 impl Default for ImmTrackerParams {
@@ -1269,9 +1276,19 @@ impl Default for ImmTrackerParams {
             axes: AxisThresholds::default(),
             noise: NoiseParams::default(),
             learn_velocity_lag: true,
+            outliers: OutlierParams::default(),
         }
     }
 }
+
+/// Velocity reports older than this no longer vouch for a straight flight (the outlier
+/// test's condition), s: the hybrid's `velocity_stale_s` default, six missed reports.
+const VELOCITY_CURRENT_S: f64 = 3.0;
+
+/// A velocity report vouches for a straight flight when the CV model's horizontal NIS on it
+/// is under this: χ²(2)'s 99 % point, −2 ln 0.01. A turn's or a speed change's first
+/// reports exceed it before CV's probability falls.
+const VELOCITY_FITS_CV_NIS: f64 = 9.21;
 
 /// The plain IMM learns the measurement noise only while its CV mode is this probable: the
 /// other models' innovations, and CV's in a manoeuvre, carry model error.
@@ -1314,6 +1331,12 @@ pub struct ImmTracker {
     /// The age of its velocity reports, learned (`learn_velocity_lag`); boxed, made at the
     /// first report, kept across restarts.
     lag: Option<Box<super::lag::VelocityLag>>,
+    /// Position reports set aside ([`super::outlier`]), kept across restarts.
+    outliers: OutlierGate,
+    /// Feed time of the last velocity report, s, and whether the CV model's innovation on
+    /// it was within [`VELOCITY_FITS_CV_NIS`]: the IMM's word for "the velocity reports
+    /// show a straight flight", which the hybrid takes from its gate.
+    last_velocity: Option<(f64, bool)>,
 }
 
 impl Default for ImmTracker {
@@ -1332,6 +1355,8 @@ impl ImmTracker {
             nis: super::nis::NisWindow::default(),
             noise: NoiseLearner::default(),
             lag: None,
+            outliers: OutlierGate::default(),
+            last_velocity: None,
         }
     }
 
@@ -1362,6 +1387,7 @@ impl ImmTracker {
             // chance event: as the hybrid publishes it.
             diverging: self.imm.divergence_run(best) >= self.params.imm.divergence.confirm,
             divergence_events: self.imm.divergence_events()[best.index()],
+            outlier_positions: self.outliers.count(),
             nis: self.nis.stat(),
         }
     }
@@ -1409,10 +1435,16 @@ impl Tracker for ImmTracker {
     /// aircraft's).
     fn reset(&mut self) {
         let noise = self.noise;
+        let outliers = self.outliers;
         let lag = super::lag::kept_over_restart(self.lag.take());
         *self = Self::new(self.params);
         self.noise = noise;
+        self.outliers = outliers;
         self.lag = lag;
+    }
+
+    fn outlier_positions(&self) -> u64 {
+        self.outliers.count()
     }
 
     fn set_accuracy_declared(&mut self, position: bool, velocity: bool) {
@@ -1447,7 +1479,33 @@ impl Tracker for ImmTracker {
                 // CV's probability before this report: a manoeuvre that starts here shows
                 // first as CV's innovation, and is learned from once at most.
                 let steady = self.imm.probabilities()[ImmMode::Cv.index()] >= LEARN_CV_PROBABILITY;
+                let position_only = matches!(obs, Observation::Position(_));
+                let vouched = steady
+                    && self
+                        .last_velocity
+                        .is_some_and(|(t, fits)| fits && m.t_s - t <= VELOCITY_CURRENT_S);
+                // The step runs in place; a report that may be set aside is stepped from a
+                // copy kept to go back to (about 2.6 KB, only then).
+                let before = (position_only
+                    && self.outliers.may_set_aside(vouched, &self.params.outliers))
+                .then(|| self.imm.clone());
                 self.imm.step(dt_s, &obs)?;
+                if m.velocity.is_some() {
+                    let fits = self.imm.nis(ImmMode::Cv) < VELOCITY_FITS_CV_NIS;
+                    self.last_velocity = Some((m.t_s, fits));
+                }
+                if position_only
+                    && self.outliers.set_aside(
+                        self.imm.nis(ImmMode::Cv),
+                        vouched,
+                        &self.params.outliers,
+                    )
+                {
+                    if let Some(before) = before {
+                        self.imm = before;
+                        return Ok(());
+                    }
+                }
                 if steady {
                     let [pos, vel] = *self.imm.cv_blocks();
                     self.noise.learn(&pos, &vel, &self.params.noise);

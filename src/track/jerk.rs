@@ -306,6 +306,7 @@ impl JerkTracker {
             filter: self.name(),
             diverging: false,
             divergence_events: 0,
+            outlier_positions: 0,
             // This tracker does not label movement axes.
             turn: None,
             lateral: super::Lateral::Straight,

@@ -19,6 +19,7 @@ pub mod lag;
 pub mod models;
 pub mod nis;
 pub mod noise;
+pub mod outlier;
 pub mod shared;
 pub mod singer;
 pub mod vsimm;
@@ -304,6 +305,9 @@ pub struct Estimate {
     pub diverging: bool,
     /// Divergence events counted over the track's life.
     pub divergence_events: u64,
+    /// Position reports set aside as out of their time ([`outlier`]) over the aircraft's
+    /// life; 0 for a tracker without the test.
+    pub outlier_positions: u64,
     /// Direction of the turn when `mode` is [`FlightMode::Ct`], else `None`.
     pub turn: Option<TurnDirection>,
     /// Transversal movement (I062/200 TRANS).
@@ -409,6 +413,13 @@ pub trait Tracker: Send {
     /// tracker and the IMM bound the total error they publish by a declaration and learn
     /// an undeclared block's noise with a weaker prior ([`noise`]).
     fn set_accuracy_declared(&mut self, _position: bool, _velocity: bool) {}
+
+    /// Position reports set aside as out of their time over the aircraft's life
+    /// ([`outlier`]; [`Estimate::outlier_positions`] without forming an estimate): the
+    /// daemon counts them after each update. 0 for a tracker without the test.
+    fn outlier_positions(&self) -> u64 {
+        0
+    }
 }
 
 /// The alternative trackers of papers 000, 001 and 003 by name, with default parameters:

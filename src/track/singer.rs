@@ -368,6 +368,7 @@ impl SingerTracker {
             filter: self.name(),
             diverging: self.diverging,
             divergence_events: self.divergence_events,
+            outlier_positions: 0,
             // This tracker does not label movement axes.
             turn: None,
             lateral: super::Lateral::Straight,

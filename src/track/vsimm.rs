@@ -516,6 +516,7 @@ impl Vsimm {
             filter: self.name(),
             diverging: false,
             divergence_events: 0,
+            outlier_positions: 0,
             // This tracker does not label movement axes.
             turn: None,
             lateral: super::Lateral::Straight,

@@ -779,7 +779,7 @@ function renderPanel() {
     `<dt>vertical rate</dt><dd>${fmt(t.vertical_rate_mps * FT_PER_M * 60, 0)} ft/min</dd>` +
     `<dt>position &sigma;</dt><dd>${fmt(t.pos_sigma_m, 1)} m (velocity ${fmt(t.vel_sigma_mps, 2)} m/s)</dd>` +
     `<dt>divergence</dt><dd${t.diverging ? ' class="alert"' : ""}>${t.diverging ? "diverging now" : "not diverging"}; ${t.divergence_events ?? 0} events</dd>` +
-    `<dt>messages</dt><dd>${t.messages ?? "-"}; positions ${t.positions_accepted ?? "-"} accepted, ${t.positions_rejected ?? "-"} rejected</dd>` +
+    `<dt>messages</dt><dd>${t.messages ?? "-"}; positions ${t.positions_accepted ?? "-"} accepted, ${t.positions_rejected ?? "-"} rejected, ${t.outlier_positions ?? 0} set aside</dd>` +
     `<dt>last heard</dt><dd>${age === null ? "-" : `${age.toFixed(1)} s ago`}</dd>` +
     `</dl><details open><summary>every field</summary><table class="fields">` +
     Object.entries(t).map(([k, v]) => `<tr><td>${esc(k)}</td><td>${fieldValue(v)}</td></tr>`).join("") +

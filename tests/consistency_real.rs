@@ -170,6 +170,14 @@ fn afr34zg_velocities_lag_its_positions_by_about_a_second() {
 /// (`tracker.imm.velocity_lag_s = 1.07`, this file's figure above) to 1.06. The plain
 /// `imm`, whose most probable mode is CT on 111 updates, learns it the same way: 4.09
 /// taken as current, 1.27 learnt, 1.25 given.
+///
+/// Since positions out of their time are set aside (`track::outlier`), the figures are
+/// hybrid 3.20, 1.63, 1.18 and imm 4.79, 2.14, 1.63. The flight's bursts of stale
+/// positions (two or three every 16-48 s) had each counted in the learned noise as an
+/// unlucky draw, at five times its predicted size: what the tracks learn now is the noise
+/// of the reports they use, smaller, and the turns' own model error shows against it. 18
+/// of the `imm`'s 111 CT updates were the IMM explaining a burst as a turn (NIS/dof 17
+/// there): it now has 99, all in the flight's turns.
 #[test]
 fn afr34zg_turns_are_consistent_with_the_velocity_lag() {
     let frames = afr34zg_frames();
@@ -191,7 +199,7 @@ fn afr34zg_turns_are_consistent_with_the_velocity_lag() {
     // learnt, and the band given.)
     for (tracker, min_n, current_above, learnt_under, given_band) in [
         ("hybrid", 500, 2.4, 1.8, 0.8..1.3),
-        ("imm", 100, 3.0, 1.6, 0.9..1.6),
+        ("imm", 90, 3.0, 2.5, 0.9..2.0),
     ] {
         let (n, current) = median_ct_nis(tracker, false, 0.0);
         let (_, learnt) = median_ct_nis(tracker, true, 0.0);

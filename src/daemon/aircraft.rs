@@ -148,8 +148,6 @@ pub struct Aircraft {
     /// The position decoder's reference resets seen so far (`CprStats::resets`).
     cpr_resets_seen: u64,
     updates: u64,
-    /// The tracker's set-aside positions counted so far (`Tracker::outlier_positions`).
-    outliers_seen: u64,
     /// Feed time of the last tracker update, s.
     last_update_t_s: f64,
     /// Half the trackers' `max_gap_s`: a report without a position after this much silence
@@ -201,7 +199,6 @@ impl Aircraft {
             last_fix: None,
             cpr_resets_seen: 0,
             updates: 0,
-            outliers_seen: 0,
             last_update_t_s: f64::NEG_INFINITY,
             ending_gap_s: 0.5 * cfg.tracker_config.max_gap_s,
             ended: None,
@@ -353,6 +350,8 @@ impl Aircraft {
             self.facts.nac_p.is_some(),
             self.facts.nac_v.is_some_and(|v| v > 0),
         );
+        // Positions the tracker sets aside (`track::outlier`), counted over the daemon.
+        let outliers_before = self.tracker.outlier_positions();
         match self.tracker.update(m) {
             // A report without a position long after the track's last one ends the track
             // (every tracker's `max_gap_s` rule) rather than updating it: no estimate left.
@@ -366,9 +365,10 @@ impl Aircraft {
                 self.last_update_t_s = m.t_s;
                 self.updates += 1;
                 counts.track_updates += 1;
-                let outliers = self.tracker.outlier_positions();
-                counts.outlier_positions += outliers.saturating_sub(self.outliers_seen);
-                self.outliers_seen = outliers;
+                counts.outlier_positions += self
+                    .tracker
+                    .outlier_positions()
+                    .saturating_sub(outliers_before);
                 true
             }
             Err(e) => {

@@ -172,12 +172,12 @@ fn afr34zg_velocities_lag_its_positions_by_about_a_second() {
 /// taken as current, 1.27 learnt, 1.25 given.
 ///
 /// Since positions out of their time are set aside (`track::outlier`), the figures are
-/// hybrid 3.20, 1.63, 1.18 and imm 4.79, 2.14, 1.63. The flight's bursts of stale
+/// hybrid 3.29, 1.65, 1.17 and imm 4.80, 1.87, 1.77. The flight's bursts of stale
 /// positions (two or three every 16-48 s) had each counted in the learned noise as an
 /// unlucky draw, at five times its predicted size: what the tracks learn now is the noise
-/// of the reports they use, smaller, and the turns' own model error shows against it. 18
-/// of the `imm`'s 111 CT updates were the IMM explaining a burst as a turn (NIS/dof 17
-/// there): it now has 99, all in the flight's turns.
+/// of the reports they use, smaller, and the turns' own model error shows against it.
+/// About 18 of the `imm`'s 111 CT updates were the IMM explaining a burst as a turn
+/// (NIS/dof 17 there): it now has 100, in the flight's turns.
 #[test]
 fn afr34zg_turns_are_consistent_with_the_velocity_lag() {
     let frames = afr34zg_frames();

@@ -541,7 +541,13 @@ impl TrackerConfig {
     fn outlier_params(&self) -> Result<OutlierParams, ConfigError> {
         let h = &self.hybrid;
         Ok(OutlierParams {
-            nis: check("tracker.hybrid.outlier_nis", h.outlier_nis, 0.0, false, 1.0e6)?,
+            nis: check(
+                "tracker.hybrid.outlier_nis",
+                h.outlier_nis,
+                0.0,
+                false,
+                1.0e6,
+            )?,
             max_in_a_row: count(
                 "tracker.hybrid.outlier_max_in_a_row",
                 h.outlier_max_in_a_row as usize,

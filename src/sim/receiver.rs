@@ -759,7 +759,11 @@ mod tests {
             let t = f64::from(k) * 0.5;
             match bursts.reported(t, &cfg) {
                 Some(state) => {
-                    assert!((state.t_s - (t - 0.62)).abs() < 1e-9, "{} at {t}", state.t_s);
+                    assert!(
+                        (state.t_s - (t - 0.62)).abs() < 1e-9,
+                        "{} at {t}",
+                        state.t_s
+                    );
                     run += 1;
                 }
                 None => {

@@ -162,7 +162,7 @@ pub struct HybridParams {
     pub learn_velocity_lag: bool,
     /// Position reports out of their time set aside ([`super::outlier`]): while velocity
     /// reports show a straight flight, a position whose horizontal NIS in the CV filter
-    /// is one a consistent filter shows once in 10⁴ reports, at most two in a row and
+    /// is one a consistent filter shows once in 10⁶ reports, at most two in a row and
     /// while such reports are rare. Default on ([`OutlierParams::default`]).
     pub outliers: OutlierParams,
 }
@@ -837,8 +837,10 @@ impl Tracker for HybridTracker {
                     return Ok(());
                 };
                 let dt_s = m.t_s - track_t_s.unwrap_or(m.t_s);
+                // Current velocity reports in which the gate sees no horizontal manoeuvre
+                // vouch for a straight flight: a position far off it may be set aside.
                 let f = self.gate.reading().flags;
-                let vouched = !(f.turning() || f.speed_changing()) && !self.velocity_stale(m.t_s);
+                let vouched = !(f.turning() || f.speed_changing() || self.velocity_stale(m.t_s));
                 if !self.filter_step(dt_s, &obs, vouched)? {
                     return Ok(());
                 }

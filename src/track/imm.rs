@@ -1263,8 +1263,9 @@ pub struct ImmTrackerParams {
     /// [`ImmParams::velocity_lag_s`]. Default true.
     pub learn_velocity_lag: bool,
     /// Position reports out of their time set aside ([`super::outlier`]), judged by the CV
-    /// model's innovation while CV holds at least [`LEARN_CV_PROBABILITY`] and velocity
-    /// reports are current, as the hybrid's CV filter does. Default on.
+    /// model's innovation while CV holds at least [`LEARN_CV_PROBABILITY`] and the last
+    /// velocity report, within 3 s, fitted CV: the velocity reports vouch for a straight
+    /// flight, as the hybrid's gate does for its CV filter. Default on.
     pub outliers: OutlierParams,
 }
 

@@ -176,8 +176,8 @@ fn afr34zg_velocities_lag_its_positions_by_about_a_second() {
 /// positions (two or three every 16-48 s) had each counted in the learned noise as an
 /// unlucky draw, at five times its predicted size: what the tracks learn now is the noise
 /// of the reports they use, smaller, and the turns' own model error shows against it.
-/// About 18 of the `imm`'s 111 CT updates were the IMM explaining a burst as a turn
-/// (NIS/dof 17 there): it now has 100, in the flight's turns.
+/// The `imm` has 100 CT updates instead of 111: in a replay 16 of its old CT labels sat on
+/// the cruise's bursts, the IMM explaining a stale position as a turn (NIS/dof 18 there).
 #[test]
 fn afr34zg_turns_are_consistent_with_the_velocity_lag() {
     let frames = afr34zg_frames();

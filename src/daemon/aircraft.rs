@@ -350,8 +350,12 @@ impl Aircraft {
             self.facts.nac_p.is_some(),
             self.facts.nac_v.is_some_and(|v| v > 0),
         );
-        // Positions the tracker sets aside (`track::outlier`), counted over the daemon.
-        let outliers_before = self.tracker.outlier_positions();
+        // Positions the tracker sets aside (`track::outlier`), counted over the daemon: only
+        // a report with a position can be one, so the others do not ask.
+        let outliers_before = m
+            .position
+            .is_some()
+            .then(|| self.tracker.outlier_positions());
         match self.tracker.update(m) {
             // A report without a position long after the track's last one ends the track
             // (every tracker's `max_gap_s` rule) rather than updating it: no estimate left.
@@ -365,10 +369,10 @@ impl Aircraft {
                 self.last_update_t_s = m.t_s;
                 self.updates += 1;
                 counts.track_updates += 1;
-                counts.outlier_positions += self
-                    .tracker
-                    .outlier_positions()
-                    .saturating_sub(outliers_before);
+                if let Some(before) = outliers_before {
+                    counts.outlier_positions +=
+                        self.tracker.outlier_positions().saturating_sub(before);
+                }
                 true
             }
             Err(e) => {

@@ -838,9 +838,12 @@ impl Tracker for HybridTracker {
                 };
                 let dt_s = m.t_s - track_t_s.unwrap_or(m.t_s);
                 // Current velocity reports in which the gate sees no horizontal manoeuvre
-                // vouch for a straight flight: a position far off it may be set aside.
-                let f = self.gate.reading().flags;
-                let vouched = !(f.turning() || f.speed_changing() || self.velocity_stale(m.t_s));
+                // vouch for a straight flight: a position far off it may be set aside (a
+                // report with a velocity never is).
+                let vouched = matches!(obs, Observation::Position(_)) && {
+                    let f = self.gate.reading().flags;
+                    !(f.turning() || f.speed_changing() || self.velocity_stale(m.t_s))
+                };
                 if !self.filter_step(dt_s, &obs, vouched)? {
                     return Ok(());
                 }

@@ -221,3 +221,134 @@ fn afr34zg_frames() -> Vec<adsb_tracker::feed::RawFrame> {
         .join("afr34zg-cdg-tls.jsonl");
     consistency::read_frames_at(&path, None, 1000.0).unwrap()
 }
+
+/// Ground-velocity reports of one recording, airborne and over 100 m/s: (time s, east and
+/// north m/s), each aircraft's in order, a second copy of one transmission (the same values
+/// within `decode.duplicate_window_s`) dropped.
+fn fast_velocity_reports(frames: &[adsb_tracker::feed::RawFrame]) -> Vec<Vec<(f64, f64, f64)>> {
+    use adsb_tracker::decode::{Decoder, DecoderConfig, Message};
+    const KT_MPS: f64 = 1852.0 / 3600.0;
+    let config = Config::default_config().unwrap();
+    let mut decoder = Decoder::new(DecoderConfig {
+        fix_single_bit: config.decode.fix_single_bit,
+        recent_address_s: config.decode.recent_address_s,
+    });
+    let mut by_icao: BTreeMap<adsb_tracker::decode::Icao, Vec<(f64, f64, f64)>> = BTreeMap::new();
+    for f in frames {
+        let Ok(d) = decoder.decode(f) else { continue };
+        let Message::Velocity(v) = d.msg else {
+            continue;
+        };
+        let Some((e_kt, n_kt)) = v.ground_kt else {
+            continue;
+        };
+        let (e, n) = (e_kt * KT_MPS, n_kt * KT_MPS);
+        let reports = by_icao.entry(d.icao).or_default();
+        if let Some(&(t, pe, pn)) = reports.last() {
+            if d.time_s - t <= config.decode.duplicate_window_s && (pe, pn) == (e, n) {
+                continue;
+            }
+        }
+        if e.hypot(n) > 100.0 {
+            reports.push((d.time_s, e, n));
+        }
+    }
+    by_icao.into_values().collect()
+}
+
+/// What the windowed NIS can show where velocity reports repeat (`docs/evaluation.md`,
+/// "Velocity reports that repeat"). In 1-kt steps the velocity of an airliner in steady
+/// flight repeats the last report: on AFR34ZG 79 % of the airborne velocity reports do
+/// (`evaluate --recording`'s "velocity reports held" column), where the simulator's NACv 2
+/// noise repeats on under 2 %. A held report's innovation is near zero whatever a filter
+/// claims. So even the best one-step predictor there is (the last report itself, its
+/// innovation the step to the next) with the best constant variance a filter could claim
+/// puts barely half of the windows of ten velocity reports inside their 95 % χ² band, where
+/// a white Gaussian innovation would put 95 %: the data's limit on the issue's 90 %, not a
+/// filter's. The best variance is the 1-kt step's quantisation variance, Δ²/12.
+#[test]
+fn afr34zg_velocity_reports_repeat_and_bound_the_nis() {
+    let frames = afr34zg_frames();
+    let g = consistency::measure(&frames, &Config::default_config().unwrap(), "kalman-cv");
+    within(
+        "AFR34ZG velocity reports held %",
+        g["all"].velocity_held_pct(),
+        77.0,
+        82.0,
+    );
+    // The steps between successive reports at most a second apart: squared, per axis.
+    let mut steps: Vec<f64> = Vec::new();
+    for reports in fast_velocity_reports(&frames) {
+        for w in reports.windows(2) {
+            if let [(ta, ea, na), (tb, eb, nb)] = w {
+                if tb - ta <= 1.0 {
+                    steps.push(((eb - ea).powi(2) + (nb - na).powi(2)) / 2.0);
+                }
+            }
+        }
+    }
+    assert!(steps.len() > 4000, "{} steps", steps.len());
+    let held = steps.iter().filter(|&&s| s == 0.0).count() as f64 / steps.len() as f64;
+    const WINDOW: usize = 10;
+    let (lo, hi) = consistency::chi2_band(2.0 * WINDOW as f64);
+    let in_band = |var: f64| {
+        let windows: Vec<f64> = steps
+            .windows(WINDOW)
+            .map(|w| 2.0 * w.iter().sum::<f64>() / var)
+            .collect();
+        windows.iter().filter(|&&s| (lo..=hi).contains(&s)).count() as f64 / windows.len() as f64
+    };
+    // The claimed per-axis variance swept over four decades, 5 % apart.
+    let (best_share, best_var) = (0..190)
+        .map(|k| 1e-4 * 1.05_f64.powi(k))
+        .map(|var| (in_band(var), var))
+        .fold((0.0, 0.0), |a, b| if b.0 > a.0 { b } else { a });
+    let quantisation_var = (1852.0_f64 / 3600.0).powi(2) / 12.0;
+    eprintln!(
+        "{} steps, {:.1} % held; best constant variance {best_var:.4} (m/s)² \
+         (Δ²/12 = {quantisation_var:.4}): {:.1} % of {WINDOW}-report windows in band",
+        steps.len(),
+        100.0 * held,
+        100.0 * best_share
+    );
+    assert!((0.75..0.88).contains(&held), "held {held}");
+    assert!(best_share < 0.65, "best share {best_share}");
+    assert!(
+        (0.5 * quantisation_var..2.0 * quantisation_var).contains(&best_var),
+        "best variance {best_var}"
+    );
+}
+
+/// The "velocity reports held" column tells the two kinds of velocity apart: the
+/// simulator's NACv 2 noise (σ 1.2 m/s, paper002) repeats the last report on under 2 % of
+/// the reports, a GNSS-grade 0.05 m/s (`airliner-gnss-velocity`) on about 80 %, as
+/// AFR34ZG's real reports do (previous test); `airliner-nacp10`'s 0.3 m/s on about 18 %.
+#[test]
+fn held_velocity_reports_on_the_simulator() {
+    let dir = std::env::temp_dir().join(format!("adsb-held-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let config = Config::default_config().unwrap();
+    for (scenario, lo, hi) in [
+        ("paper002", 0.0, 2.0),
+        ("airliner-nacp10", 12.0, 25.0),
+        ("airliner-gnss-velocity", 75.0, 88.0),
+    ] {
+        let sc = adsb_tracker::sim::load_scenario(scenario).unwrap();
+        let prefix = dir.join(scenario);
+        let summary = adsb_tracker::sim::simulate(&sc, sc.settings.seed, &prefix).unwrap();
+        let frames = consistency::read_frames_at(&summary.beast_path, None, 1000.0).unwrap();
+        let g = consistency::measure(&frames, &config, "kalman-cv");
+        eprintln!(
+            "{scenario}: {:?} % of {} velocity reports held",
+            g["all"].velocity_held_pct(),
+            g["all"].velocity_reports
+        );
+        within(
+            &format!("{scenario} velocity reports held %"),
+            g["all"].velocity_held_pct(),
+            lo,
+            hi,
+        );
+    }
+    std::fs::remove_dir_all(&dir).ok();
+}

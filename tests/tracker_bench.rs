@@ -443,3 +443,42 @@ fn stale_position_bursts_are_set_aside() {
         );
     }
 }
+
+/// Velocity reports that repeat (`airliner-gnss-velocity`: `airliner-nacp10` with a GNSS
+/// receiver's 0.05 m/s of velocity noise instead of 0.3 m/s, so that, in 1-kt steps, 82 % of
+/// the velocity reports repeat the last one, as AFR34ZG's 79 % do). The velocity is four
+/// times more accurate (100 runs, hybrid, in the descent: 0.065 against 0.286 m/s), but what
+/// the track claims for it hardly moves: it is set by the CV model's process noise, q_h =
+/// 0.25 m²/s³, not by the reports. So the velocity ANEES falls from 0.66 to 0.13 (its claim
+/// 15 times the error) and the windowed NIS, which sees held reports' near-zero innovations
+/// against that claim, is in its band 28 % of the time instead of 61 % (AFR34ZG: 17 %).
+/// Half of the real recordings' NIS below its band is this caution, which the truth shows;
+/// the rest is the data's own limit (`tests/consistency_real.rs`). Not yet fixed: a lower
+/// q_h lets the position claim collapse (`docs/evaluation.md`, "Velocity reports that
+/// repeat"). When it is, this test's bounds must turn round.
+#[test]
+fn repeating_velocity_reports_show_the_velocity_caution() {
+    let runs = 10;
+    let white = &run("airliner-nacp10", &["hybrid"], runs)[0];
+    let gnss = &run("airliner-gnss-velocity", &["hybrid"], runs)[0];
+    let vel = |s: &Scores| s.estimates["CH"].vel_rmse().unwrap();
+    let anees = |s: &Scores| s.estimates["all"].anees_vel().unwrap();
+    let nis = |s: &Scores| s.nis_in_band_pct().unwrap();
+    let report = format!(
+        "descent velocity RMSE {:.3} -> {:.3} m/s, velocity ANEES {:.2} -> {:.2}, NIS in band {:.1} -> {:.1} %",
+        vel(white),
+        vel(gnss),
+        anees(white),
+        anees(gnss),
+        nis(white),
+        nis(gnss)
+    );
+    eprintln!("{report}");
+    assert!(vel(gnss) < 0.4 * vel(white), "{report}");
+    assert!(
+        anees(gnss) < 0.3 && anees(gnss) < 0.4 * anees(white),
+        "{report}"
+    );
+    assert!(nis(gnss) < nis(white) - 20.0, "{report}");
+    assert!(nis(gnss) < 40.0, "{report}");
+}

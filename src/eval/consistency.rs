@@ -16,11 +16,18 @@
 //!   published on that update (the estimate moves towards the fix by its gain, so this is a
 //!   slight underestimate of the distance to the prior track);
 //! - NIS in band: the published windowed NIS (`nis`, a sum over `nis_dof` measured
-//!   components) inside the two-sided 95 % band of χ²(`nis_dof`).
+//!   components) inside the two-sided 95 % band of χ²(`nis_dof`);
+//! - velocity reports held: the airborne ground-velocity reports (subtypes 1 and 2) whose
+//!   east and north components repeat the aircraft's previous report exactly, of those
+//!   within [`HELD_MAX_GAP_S`] of it (a second copy of one transmission,
+//!   `decode.duplicate_window_s`, is not a report). Reported in 1-kt steps, the velocity of
+//!   an aircraft in steady flight repeats: those innovations are near zero whatever the
+//!   filter claims, so this share bounds how chi-square the windowed NIS can look
+//!   (`docs/evaluation.md`). A property of the recording: the same for every tracker.
 
 use super::bench::sync_pipeline;
 use crate::config::Config;
-use crate::decode::Icao;
+use crate::decode::{Decoder, DecoderConfig, Icao, Message};
 use crate::feed::RawFrame;
 use serde::Serialize;
 use std::collections::{BTreeMap, HashMap};
@@ -28,6 +35,10 @@ use std::fmt::Write;
 
 /// A track younger than this is still converging: not "steady", s.
 pub const STEADY_AFTER_S: f64 = 30.0;
+
+/// Successive velocity reports further apart than this are not compared for a repeat, s:
+/// four ADS-B velocity intervals, after which a held value says little.
+pub const HELD_MAX_GAP_S: f64 = 2.0;
 
 pub use super::bench::read_frames_at;
 
@@ -56,6 +67,10 @@ pub struct Group {
     /// own noise over the published variance).
     #[serde(skip)]
     pub fix_nees: Vec<f64>,
+    /// Airborne velocity reports compared with the aircraft's previous one, and those that
+    /// repeat it exactly (module doc).
+    pub velocity_reports: u64,
+    pub velocity_held: u64,
 }
 
 fn median(v: &mut [f64]) -> Option<f64> {
@@ -89,6 +104,9 @@ impl Group {
     pub fn median_pos_sigma_m(&self) -> Option<f64> {
         median(&mut self.pos_sigma_m.clone())
     }
+    pub fn velocity_held_pct(&self) -> Option<f64> {
+        pct(self.velocity_held, self.velocity_reports)
+    }
     fn merge(&mut self, o: &Group) {
         self.updates += o.updates;
         self.airborne += o.airborne;
@@ -101,6 +119,8 @@ impl Group {
         self.pos_sigma_m.extend_from_slice(&o.pos_sigma_m);
         self.fix_nees.extend_from_slice(&o.fix_nees);
         self.nis_per_dof.extend_from_slice(&o.nis_per_dof);
+        self.velocity_reports += o.velocity_reports;
+        self.velocity_held += o.velocity_held;
     }
 }
 
@@ -136,11 +156,34 @@ pub fn measure(frames: &[RawFrame], config: &Config, tracker: &str) -> BTreeMap<
     let mut groups: BTreeMap<String, Group> = BTreeMap::new();
     let mut first_t: HashMap<Icao, f64> = HashMap::new();
     let labels = tracker != "kalman-cv";
+    // The recording's own velocity reports, read by a decoder of their own: (time, east and
+    // north in knots) of each aircraft's last one, and the group its last state fell in.
+    let mut decoder = Decoder::new(DecoderConfig {
+        fix_single_bit: config.decode.fix_single_bit,
+        recent_address_s: config.decode.recent_address_s,
+    });
+    let mut last_velocity: HashMap<Icao, (f64, (f64, f64))> = HashMap::new();
+    let mut last_key: HashMap<Icao, (String, bool)> = HashMap::new();
     for f in frames {
+        if let Ok(d) = decoder.decode(f) {
+            if let Message::Velocity(v) = d.msg {
+                if let Some(en_kt) = v.ground_kt {
+                    note_velocity(
+                        &mut groups,
+                        &mut last_velocity,
+                        &last_key,
+                        d.icao,
+                        (d.time_s, en_kt),
+                        config.decode.duplicate_window_s,
+                    );
+                }
+            }
+        }
         let Some(u) = pipeline.push(f) else { continue };
         let Some(s) = &u.state else { continue };
         let t0 = *first_t.entry(s.icao).or_insert(s.t);
         let key = s.nac_p.map_or("none".to_string(), |n| n.to_string());
+        last_key.insert(s.icao, (key.clone(), s.on_ground));
         let g = groups.entry(key).or_default();
         g.updates += 1;
         if s.on_ground {
@@ -187,6 +230,35 @@ pub fn measure(frames: &[RawFrame], config: &Config, tracker: &str) -> BTreeMap<
     groups
 }
 
+/// Counts one velocity report `(t, (east, north) kt)` of `icao` against its previous one,
+/// in the group of the aircraft's last state (none yet, or on the ground: not counted).
+fn note_velocity(
+    groups: &mut BTreeMap<String, Group>,
+    last: &mut HashMap<Icao, (f64, (f64, f64))>,
+    last_key: &HashMap<Icao, (String, bool)>,
+    icao: Icao,
+    report: (f64, (f64, f64)),
+    duplicate_window_s: f64,
+) {
+    let (t, en_kt) = report;
+    let previous = last.get(&icao).copied();
+    if let Some((tp, en_prev)) = previous {
+        let dt = t - tp;
+        if dt <= duplicate_window_s && en_prev == en_kt {
+            // A second copy of one transmission (or an older one): not a report.
+            return;
+        }
+        if let Some((key, false)) = last_key.get(&icao) {
+            if dt > 0.0 && dt <= HELD_MAX_GAP_S {
+                let g = groups.entry(key.clone()).or_default();
+                g.velocity_reports += 1;
+                g.velocity_held += u64::from(en_prev == en_kt);
+            }
+        }
+    }
+    last.insert(icao, report);
+}
+
 fn f(v: Option<f64>, digits: usize) -> String {
     v.map_or_else(|| "-".to_string(), |x| format!("{x:.digits$}"))
 }
@@ -196,9 +268,12 @@ pub fn markdown(results: &[RecordingResult]) -> String {
     let mut s = String::new();
     let _ = writeln!(
         s,
-        "| recording | tracker | NACp | airborne updates | diverging % airborne | steady updates | diverging % steady | NIS in 95 % band % (steady) | median NIS/dof (steady) | median pos_sigma_m | median fix-to-track m |"
+        "| recording | tracker | NACp | airborne updates | diverging % airborne | steady updates | diverging % steady | NIS in 95 % band % (steady) | median NIS/dof (steady) | median pos_sigma_m | median fix-to-track m | velocity reports held % |"
     );
-    let _ = writeln!(s, "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|");
+    let _ = writeln!(
+        s,
+        "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"
+    );
     for r in results {
         // "all" first, then the groups in NACp order, "none" last.
         let mut keys: Vec<&String> = r.groups.keys().collect();
@@ -214,7 +289,7 @@ pub fn markdown(results: &[RecordingResult]) -> String {
             }
             let _ = writeln!(
                 s,
-                "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
+                "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
                 r.recording,
                 r.tracker,
                 k,
@@ -226,6 +301,7 @@ pub fn markdown(results: &[RecordingResult]) -> String {
                 f(g.median_nis_per_dof(), 2),
                 f(g.median_pos_sigma_m(), 2),
                 f(g.median_scatter_m(), 2),
+                f(g.velocity_held_pct(), 1),
             );
         }
     }

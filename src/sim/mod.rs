@@ -85,7 +85,7 @@ impl SimSummary {
 }
 
 /// The built-in scenarios: name and TOML text (fixtures/scenarios/NAME.toml, embedded).
-pub const BUILTIN: [(&str, &str); 14] = [
+pub const BUILTIN: [(&str, &str); 15] = [
     (
         "paper000",
         include_str!("../../fixtures/scenarios/paper000.toml"),
@@ -121,6 +121,10 @@ pub const BUILTIN: [(&str, &str); 14] = [
     (
         "airliner-nacp10",
         include_str!("../../fixtures/scenarios/airliner-nacp10.toml"),
+    ),
+    (
+        "airliner-gnss-velocity",
+        include_str!("../../fixtures/scenarios/airliner-gnss-velocity.toml"),
     ),
     (
         "airliner-stale",
@@ -202,7 +206,7 @@ mod tests {
             e,
             "no scenario file \"nope\" and no built-in scenario of that name \
              (built-in: paper000, paper000-positions, paper001, paper002, paper002-positions, \
-             paper003, departure, approach, airliner-nacp10, airliner-stale, turns-undeclared, turns-correlated, fleet, fleet-uniform)"
+             paper003, departure, approach, airliner-nacp10, airliner-gnss-velocity, airliner-stale, turns-undeclared, turns-correlated, fleet, fleet-uniform)"
         );
     }
 

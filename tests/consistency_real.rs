@@ -8,18 +8,20 @@
 //!   updates: its covariance there is a third of what the data show.
 //! - The hybrid and the IMM learn each aircraft's noise (`track::noise`): on AFR34ZG
 //!   (declares nothing, so R starts from NUCp's 38 m per axis) the hybrid's position sigma
-//!   moves from 7 m to about 1.6 m, its windowed NIS per degree of freedom to about 0.4
-//!   (the IMM's 0.6; the plain Kalman filter's 0.03). The NIS is over the horizontal
+//!   moves from 7 m to about 1.3 m, its windowed NIS per degree of freedom to about 0.56
+//!   (the IMM's 0.56; the plain Kalman filter's 0.03). The NIS is over the horizontal
 //!   components (`track::nis`): at cruise the velocity reports hold still between 1-kt
 //!   steps, so half of what it sums stays near zero. Before the learner winsorised its
 //!   samples (`NoiseParams::outlier_ratio`), a few outlying reports held the hybrid's
 //!   learned noise up.
-//! - The windowed NIS is still seldom inside its band here (under 10 % for the hybrid on
-//!   AFR34ZG, 40 % for the IMM; 19 % for the hybrid's LAX NACp 10 aircraft), where the same
+//! - The windowed NIS is still seldom inside its band here (26 % for the hybrid on
+//!   AFR34ZG since its CV filter takes the steady-flight process noise, 17 % before; 36 %
+//!   for the IMM; 20 % for the hybrid's LAX NACp 10 aircraft), where the same
 //!   statistic is inside it on 93-94 % of the updates on the simulator's white noise
 //!   (`tests/tracker_bench.rs`): the statistic is calibrated, these innovations are not
 //!   Gaussian white noise. They are quantised (velocity steps at cruise) on AFR34ZG, and
-//!   heavy-tailed under LAX's approximate timing (docs/evaluation.md).
+//!   heavy-tailed under LAX's approximate timing (docs/evaluation.md). How much of that is
+//!   the data's own limit: `afr34zg_velocity_reports_repeat_and_bound_the_nis`.
 //!
 //! A change that moves these figures must update them here and in docs/evaluation.md.
 
@@ -44,7 +46,7 @@ fn within(what: &str, x: Option<f64>, lo: f64, hi: f64) {
 #[test]
 fn afr34zg_is_rarely_flagged() {
     for (tracker, nis_dof, sigma_m, in_band_pct) in [
-        ("hybrid", (0.3, 0.55), (1.2, 2.5), (2.0, 20.0)),
+        ("hybrid", (0.45, 0.75), (0.9, 1.6), (20.0, 40.0)),
         ("kalman-cv", (0.01, 0.08), (6.0, 9.0), (0.0, 15.0)),
         ("imm", (0.4, 0.8), (1.0, 3.0), (25.0, 55.0)),
     ] {
@@ -178,6 +180,13 @@ fn afr34zg_velocities_lag_its_positions_by_about_a_second() {
 /// of the reports they use, smaller, and the turns' own model error shows against it.
 /// The `imm` has 100 CT updates instead of 111: in a replay 16 of its old CT labels sat on
 /// the cruise's bursts, the IMM explaining a stale position as a turn (NIS/dof 18 there).
+///
+/// Since the hybrid's CV filter takes the steady-flight process noise
+/// (`tracker.steady_q_horizontal` = 0.06 instead of 0.25), the hybrid's figures are 3.35,
+/// 2.34, 1.75 (590 CT updates): a window of 20 updates at a turn's labelled updates still holds the CV
+/// filter's innovations from the turn's onset, larger against its smaller q (a turn is a
+/// surprise to a straight-flight model, and should read as one). The learned lag still
+/// brings the turns most of the way to the lag given.
 #[test]
 fn afr34zg_turns_are_consistent_with_the_velocity_lag() {
     let frames = afr34zg_frames();
@@ -198,7 +207,7 @@ fn afr34zg_turns_are_consistent_with_the_velocity_lag() {
     // (tracker, fewest CT updates, NIS/dof above which taken as current, under which
     // learnt, and the band given.)
     for (tracker, min_n, current_above, learnt_under, given_band) in [
-        ("hybrid", 500, 2.4, 1.8, 0.8..1.3),
+        ("hybrid", 500, 2.9, 2.8, 1.4..2.4),
         ("imm", 90, 3.0, 2.5, 0.9..2.0),
     ] {
         let (n, current) = median_ct_nis(tracker, false, 0.0);

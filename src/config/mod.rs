@@ -480,6 +480,10 @@ impl Config {
             86_400.0,
         )?;
         positive("tracker.cv_q_horizontal", self.tracker.cv_q_horizontal)?;
+        positive(
+            "tracker.steady_q_horizontal",
+            self.tracker.steady_q_horizontal,
+        )?;
         positive("tracker.cv_q_vertical", self.tracker.cv_q_vertical)?;
         seconds_within("tracker.max_gap_s", self.tracker.max_gap_s, 1e-3, 86_400.0)?;
         for (i, h) in self.tracker.prediction_horizons_s.iter().enumerate() {

@@ -22,8 +22,12 @@ pub struct TrackerConfig {
     pub retire_after_s: f64,
     /// Capacity of each aircraft task's channel (batches); a full channel drops and counts.
     pub channel_capacity: usize,
-    /// White-noise acceleration spectral density of the CV model, horizontal, m^2/s^3.
+    /// White-noise acceleration spectral density of the CV model of `kalman-cv` and of the
+    /// IMMs' CV mode, horizontal, m^2/s^3.
     pub cv_q_horizontal: f64,
+    /// The same for the hybrid's Kalman filter, which runs in steady flight only (its gate
+    /// hands every manoeuvre to the IMM), m^2/s^3.
+    pub steady_q_horizontal: f64,
     /// Same, vertical, m^2/s^3.
     pub cv_q_vertical: f64,
     /// A gap longer than this re-initialises a track, s.
@@ -489,7 +493,7 @@ impl TrackerConfig {
     /// tracker).
     pub fn hybrid_params(&self, paper002_gate: bool) -> Result<HybridParams, ConfigError> {
         let mut p = HybridParams::default();
-        p.cv.q_h_m2ps3 = self.cv_q_horizontal;
+        p.cv.q_h_m2ps3 = self.steady_q_horizontal;
         p.cv.q_v_m2ps3 = self.cv_q_vertical;
         p.imm = self.imm_base()?;
         p.divergence = self.divergence.params()?;

@@ -1468,6 +1468,7 @@ impl Tracker for ImmTracker {
                 let (x, p) = &*start;
                 self.imm.reset(x, p, None);
                 self.nis.clear();
+                self.noise.forget_position();
                 Ok(())
             }
             Start::Running => {
@@ -1510,6 +1511,16 @@ impl Tracker for ImmTracker {
                 if steady {
                     let [pos, vel] = *self.imm.cv_blocks();
                     self.noise.learn(&pos, &vel, &self.params.noise);
+                    if let Some(pos) = &m.position {
+                        let vel = kalman::rows::<3, _>(&self.imm.combined_state(), VEL);
+                        self.noise.learn_position_step(
+                            m.t_s,
+                            &pos.value,
+                            &vel,
+                            &up,
+                            &self.params.noise,
+                        );
+                    }
                 }
                 self.init.advance(m.t_s);
                 self.nis.push(

@@ -119,7 +119,8 @@ impl Default for Cv {
     /// q_h = (0.5 m/s²)²·s = 0.25: an airliner in "straight" flight changes speed by at most
     /// ~0.5 m/s² (thrust changes, gusts, gentle heading corrections); q_v = (0.3 m/s²)²·s =
     /// 0.09: airline operations keep vertical load-factor changes within about ±0.05 g. The
-    /// same tuning as the project's 6-state CV filter (`track::cv`).
+    /// same tuning as the project's 6-state CV filter (`track::cv`). The hybrid's own CV
+    /// filter, for steady flight only, takes less (`hybrid::STEADY_Q_H_M2PS3`).
     fn default() -> Self {
         Self {
             q_h_m2ps3: 0.25,

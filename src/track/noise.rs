@@ -232,6 +232,25 @@ impl NoiseScale {
         self.lambda = (self.lambda + weight * d).clamp(lo, params.max_scale);
     }
 
+    /// Learns from one sample of λ itself (an estimate of the noise's variance over the
+    /// declared), winsorised at `outlier_ratio` times the current λ: what
+    /// [`NoiseLearner::learn_position_step`] feeds.
+    pub fn learn_ratio(&mut self, sample: f64, params: &NoiseParams, prior_weight: f64) {
+        if !params.enabled || !sample.is_finite() || self.lambda <= 0.0 {
+            return;
+        }
+        let lo = params.min_scale.min(params.max_scale);
+        let sample = sample
+            .min(params.outlier_ratio * self.lambda)
+            .clamp(lo, params.max_scale);
+        self.n = (self.n + 1.0).min(params.window);
+        let weight = 1.0 / (self.n + prior_weight.max(0.0));
+        let d = sample - self.lambda;
+        self.scatter += weight * (d * d - self.scatter);
+        self.weight = weight;
+        self.lambda = (self.lambda + weight * d).clamp(lo, params.max_scale);
+    }
+
     /// `o` with its horizontal covariance scaled by λ, horizontal meaning perpendicular to
     /// `up` (the local vertical at the aircraft, a unit vector in the track's frame):
     /// D R D with D = I + (√λ − 1)(I − u uᵀ), a congruence, so the result is a covariance
@@ -268,7 +287,15 @@ pub struct NoiseLearner {
     pub accuracy_declared: bool,
     /// The aircraft declares its velocity accuracy (NACv or NUCr above 0).
     pub velocity_declared: bool,
+    /// The white part of the position noise over the declared, from successive position
+    /// reports ([`NoiseLearner::learn_position_step`]): what the consider term reads.
+    pub white_position: NoiseScale,
+    /// The last position report used for it: (time s, value m).
+    last_position: Option<(f64, Vector3<f64>)>,
 }
+
+/// Position reports further apart than this are not differenced, s.
+const POSITION_STEP_MAX_S: f64 = 2.0;
 
 impl NoiseLearner {
     /// Learns from one update's position and velocity blocks, the velocity's declared R₀ a
@@ -282,6 +309,39 @@ impl NoiseLearner {
         };
         self.velocity
             .learn_with_prior(velocity, params, velocity_prior);
+    }
+
+    /// Learns the white part of the position noise from the step between successive
+    /// position reports less the motion the track's velocity `vel_mps` gives, over the
+    /// horizontal (`up` the local vertical): per axis E[d²] = 2σ_w² plus what a slowly
+    /// correlated error moves in the step (for a 60 s time constant, 1/60 of its variance
+    /// over half a second). So unlike covariance matching, whose innovations carry whatever
+    /// correlated error the filter does not follow, it sees the white noise alone, however
+    /// long the filter's memory.
+    pub fn learn_position_step(
+        &mut self,
+        t_s: f64,
+        pos_m: &Vector3<f64>,
+        vel_mps: &Vector3<f64>,
+        up: &Vector3<f64>,
+        params: &NoiseParams,
+    ) {
+        if let Some((t0, p0)) = self.last_position {
+            let dt = t_s - t0;
+            if dt > 0.0 && dt <= POSITION_STEP_MAX_S && self.declared_pos_var_m2 > 0.0 {
+                let d = pos_m - p0 - vel_mps * dt;
+                let d_h2 = d.norm_squared() - d.dot(up).powi(2);
+                let sample = d_h2 / (4.0 * self.declared_pos_var_m2);
+                self.white_position
+                    .learn_ratio(sample, params, params.prior_weight);
+            }
+        }
+        self.last_position = Some((t_s, *pos_m));
+    }
+
+    /// Forgets the last position (a new track: its frame may have moved).
+    pub fn forget_position(&mut self) {
+        self.last_position = None;
     }
 
     /// Notes the declared (unscaled) covariance of a position report.
@@ -336,7 +396,7 @@ impl NoiseLearner {
         }
         // Only what λ misses by more than twice its standard error: a white noise as
         // declared gives λ scattering about 1, and that scatter is not a bias.
-        self.declared_pos_var_m2 * (1.0 - self.position.effective()).max(0.0)
+        self.declared_pos_var_m2 * (1.0 - self.white_position.effective()).max(0.0)
     }
 }
 
@@ -533,13 +593,81 @@ mod tests {
         learner.note_position(&declared);
         learner.accuracy_declared = true;
         assert_eq!(learner.position_bias_var(), 0.0, "λ = 1: all white");
-        learner.position.lambda = 0.25;
+        learner.white_position.lambda = 0.25;
         assert_eq!(learner.position_bias_var(), 12.0);
         learner.accuracy_declared = false;
         assert_eq!(learner.position_bias_var(), 0.0, "nothing declared");
         learner.accuracy_declared = true;
-        learner.position.lambda = 4.0;
+        learner.white_position.lambda = 4.0;
         assert_eq!(learner.position_bias_var(), 0.0, "noisier than declared");
+        // The innovations' λ is not what the consider term reads.
+        learner.white_position.lambda = 1.0;
+        learner.position.lambda = 0.25;
+        assert_eq!(learner.position_bias_var(), 0.0);
+    }
+
+    /// Successive position reports at 2 Hz, white noise σ_w = 2 m per axis on a Gauss-Markov
+    /// bias of 4 m with a 60 s time constant (the `airliner-nacp10` receiver), declared
+    /// σ₀ = 5 m: the steps learn the white variance, 4 m², within 15 %, and the consider
+    /// term is the declared variance less it (not less the bias, which a long filter memory
+    /// would have shown its innovations as white noise).
+    #[test]
+    fn position_steps_learn_the_white_noise_under_a_wandering_bias() {
+        use rand::rngs::StdRng;
+        use rand::SeedableRng;
+        use rand_distr::{Distribution, Normal};
+        let mut rng = StdRng::seed_from_u64(5);
+        let white = Normal::new(0.0, 2.0).unwrap();
+        let unit = Normal::new(0.0, 1.0).unwrap();
+        let params = NoiseParams::default();
+        let mut learner = NoiseLearner {
+            accuracy_declared: true,
+            ..NoiseLearner::default()
+        };
+        let declared = Observed {
+            value: Vector3::zeros(),
+            cov: Matrix3::from_diagonal(&Vector3::new(25.0, 25.0, 100.0)),
+        };
+        let vel = Vector3::new(230.0, 0.0, 0.0);
+        let (dt, tau, sigma_b): (f64, f64, f64) = (0.5, 60.0, 4.0);
+        let phi: f64 = (-dt / tau).exp();
+        let mut bias = Vector3::new(
+            sigma_b * unit.sample(&mut rng),
+            sigma_b * unit.sample(&mut rng),
+            0.0,
+        );
+        let mut learned = Vec::new();
+        for k in 0..4000 {
+            let t = k as f64 * dt;
+            for axis in 0..2 {
+                bias[axis] =
+                    phi * bias[axis] + sigma_b * (1.0 - phi * phi).sqrt() * unit.sample(&mut rng);
+            }
+            let noise = Vector3::new(white.sample(&mut rng), white.sample(&mut rng), 0.0);
+            let z = vel * t + bias + noise;
+            learner.note_position(&declared);
+            learner.learn_position_step(t, &z, &vel, &Vector3::z(), &params);
+            if k > 400 {
+                learned.push(learner.white_position.lambda() * 25.0);
+            }
+        }
+        let mean = learned.iter().sum::<f64>() / learned.len() as f64;
+        assert!(
+            (mean - 4.0).abs() < 0.6,
+            "white variance learned {mean} m², truth 4"
+        );
+        let bias_var = learner.position_bias_var();
+        assert!(
+            (17.0..23.0).contains(&bias_var),
+            "consider {bias_var} m², want 25 − 4"
+        );
+        // A gap longer than POSITION_STEP_MAX_S is not differenced; a new track forgets.
+        let before = learner.white_position;
+        learner.learn_position_step(1e6, &Vector3::zeros(), &vel, &Vector3::z(), &params);
+        assert_eq!(learner.white_position, before);
+        learner.forget_position();
+        learner.learn_position_step(1e6 + 0.5, &Vector3::zeros(), &vel, &Vector3::z(), &params);
+        assert_eq!(learner.white_position, before);
     }
 
     #[test]

@@ -866,15 +866,10 @@ impl Tracker for HybridTracker {
                 if !self.filter_step(dt_s, &obs, vouched)? {
                     return Ok(());
                 }
-                if let (Branch::Cv { x, .. }, Some(pos)) = (&self.branch, &m.position) {
+                if let Branch::Cv { x, .. } = &self.branch {
                     let vel = kalman::rows::<3, _>(x, 3);
-                    self.noise.learn_position_step(
-                        m.t_s,
-                        &pos.value,
-                        &vel,
-                        &up,
-                        &self.params.noise,
-                    );
+                    self.noise
+                        .learn_position_step(m, &vel, &up, &self.params.noise);
                 }
                 self.init.advance(m.t_s);
                 self.feed_gate(m);

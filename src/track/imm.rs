@@ -1511,15 +1511,10 @@ impl Tracker for ImmTracker {
                 if steady {
                     let [pos, vel] = *self.imm.cv_blocks();
                     self.noise.learn(&pos, &vel, &self.params.noise);
-                    if let Some(pos) = &m.position {
+                    if m.position.is_some() {
                         let vel = kalman::rows::<3, _>(&self.imm.combined_state(), VEL);
-                        self.noise.learn_position_step(
-                            m.t_s,
-                            &pos.value,
-                            &vel,
-                            &up,
-                            &self.params.noise,
-                        );
+                        self.noise
+                            .learn_position_step(m, &vel, &up, &self.params.noise);
                     }
                 }
                 self.init.advance(m.t_s);

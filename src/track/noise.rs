@@ -223,19 +223,13 @@ impl NoiseScale {
         if !sample.is_finite() || tr_r0 <= 0.0 {
             return;
         }
-        // The mean of (prior_weight × 1, samples...), forgetting beyond the window.
-        self.n = (self.n + 1.0).min(params.window);
-        let weight = 1.0 / (self.n + prior_weight.max(0.0));
-        let d = sample - self.lambda;
-        self.scatter += weight * (d * d - self.scatter);
-        self.weight = weight;
-        self.lambda = (self.lambda + weight * d).clamp(lo, params.max_scale);
+        self.push(sample, params, prior_weight);
     }
 
     /// Learns from one sample of λ itself (an estimate of the noise's variance over the
     /// declared), winsorised at `outlier_ratio` times the current λ: what
     /// [`NoiseLearner::learn_position_step`] feeds.
-    pub fn learn_ratio(&mut self, sample: f64, params: &NoiseParams, prior_weight: f64) {
+    fn learn_ratio(&mut self, sample: f64, params: &NoiseParams, prior_weight: f64) {
         if !params.enabled || !sample.is_finite() || self.lambda <= 0.0 {
             return;
         }
@@ -243,6 +237,13 @@ impl NoiseScale {
         let sample = sample
             .min(params.outlier_ratio * self.lambda)
             .clamp(lo, params.max_scale);
+        self.push(sample, params, prior_weight);
+    }
+
+    /// Adds a sample (already winsorised and bounded) to the mean of (`prior_weight` × 1,
+    /// samples...), forgetting beyond the window.
+    fn push(&mut self, sample: f64, params: &NoiseParams, prior_weight: f64) {
+        let lo = params.min_scale.min(params.max_scale);
         self.n = (self.n + 1.0).min(params.window);
         let weight = 1.0 / (self.n + prior_weight.max(0.0));
         let d = sample - self.lambda;
@@ -317,15 +318,18 @@ impl NoiseLearner {
     /// correlated error moves in the step (for a 60 s time constant, 1/60 of its variance
     /// over half a second). So unlike covariance matching, whose innovations carry whatever
     /// correlated error the filter does not follow, it sees the white noise alone, however
-    /// long the filter's memory.
+    /// long the filter's memory. A report without a position teaches nothing.
     pub fn learn_position_step(
         &mut self,
-        t_s: f64,
-        pos_m: &Vector3<f64>,
+        m: &Measurement,
         vel_mps: &Vector3<f64>,
         up: &Vector3<f64>,
         params: &NoiseParams,
     ) {
+        let Some(position) = &m.position else {
+            return;
+        };
+        let (t_s, pos_m) = (m.t_s, &position.value);
         if let Some((t0, p0)) = self.last_position {
             let dt = t_s - t0;
             if dt > 0.0 && dt <= POSITION_STEP_MAX_S && self.declared_pos_var_m2 > 0.0 {
@@ -629,6 +633,14 @@ mod tests {
             cov: Matrix3::from_diagonal(&Vector3::new(25.0, 25.0, 100.0)),
         };
         let vel = Vector3::new(230.0, 0.0, 0.0);
+        let at = |t_s: f64, value: Vector3<f64>| Measurement {
+            t_s,
+            position: Some(Observed {
+                value,
+                cov: declared.cov,
+            }),
+            velocity: None,
+        };
         let (dt, tau, sigma_b): (f64, f64, f64) = (0.5, 60.0, 4.0);
         let phi: f64 = (-dt / tau).exp();
         let mut bias = Vector3::new(
@@ -646,7 +658,7 @@ mod tests {
             let noise = Vector3::new(white.sample(&mut rng), white.sample(&mut rng), 0.0);
             let z = vel * t + bias + noise;
             learner.note_position(&declared);
-            learner.learn_position_step(t, &z, &vel, &Vector3::z(), &params);
+            learner.learn_position_step(&at(t, z), &vel, &Vector3::z(), &params);
             if k > 400 {
                 learned.push(learner.white_position.lambda() * 25.0);
             }
@@ -663,10 +675,18 @@ mod tests {
         );
         // A gap longer than POSITION_STEP_MAX_S is not differenced; a new track forgets.
         let before = learner.white_position;
-        learner.learn_position_step(1e6, &Vector3::zeros(), &vel, &Vector3::z(), &params);
+        let z = Vector3::zeros();
+        learner.learn_position_step(&at(1e6, z), &vel, &Vector3::z(), &params);
         assert_eq!(learner.white_position, before);
         learner.forget_position();
-        learner.learn_position_step(1e6 + 0.5, &Vector3::zeros(), &vel, &Vector3::z(), &params);
+        learner.learn_position_step(&at(1e6 + 0.5, z), &vel, &Vector3::z(), &params);
+        assert_eq!(learner.white_position, before);
+        // Nor does a report without a position.
+        let velocity_only = Measurement {
+            position: None,
+            ..at(1e6 + 1.0, z)
+        };
+        learner.learn_position_step(&velocity_only, &vel, &Vector3::z(), &params);
         assert_eq!(learner.white_position, before);
     }
 

@@ -43,9 +43,15 @@
 //!   §VII.2): a GNSS position error wanders over tens of seconds, and a filter that averages
 //!   2 Hz reports as independent shrinks its covariance far below it; the innovations do not
 //!   show such an error either, since the track follows it. A declared NACp bounds the
-//!   *total* error, so the part of the declared variance that the innovations do not show as
-//!   white noise, σ₀²·max(0, 1 − λ') per horizontal axis, is taken as slowly correlated and
-//!   added to the published position covariance ([`NoiseLearner::position_bias_var`]). For
+//!   *total* error, so the part of the declared variance that is not white noise,
+//!   σ₀²·max(0, 1 − λ_w') per horizontal axis, is taken as slowly correlated and added to the
+//!   published position covariance ([`NoiseLearner::position_bias_var`]). The white share
+//!   λ_w is learned from the steps between successive position reports
+//!   ([`NoiseLearner::learn_position_step`]), not from the innovations: a filter whose
+//!   memory outgrows the error's time constant (a small process noise) shows the error's
+//!   drift in its innovations, which covariance matching would take for white noise, and
+//!   the correlated share would vanish just when the filter averages most (measured:
+//!   `docs/evaluation.md`, "Velocity reports that repeat"). For
 //!   an error whose time constant exceeds the filter's memory (seconds) the filter passes it
 //!   through whole, so this is its error covariance; a loose declaration makes it cautious.
 //!   With nothing declared (the NUCp fall-back is a containment bound of the type code, not

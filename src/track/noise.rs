@@ -320,7 +320,7 @@ impl NoiseLearner {
 
     /// Learns the white part of the position noise from the step between successive
     /// position reports less the motion the track's velocity `vel_mps` gives, over the
-    /// horizontal (`up` the local vertical): per axis E[d²] = 2σ_w² plus what a slowly
+    /// horizontal (`up` the local vertical): per axis E(d²) = 2σ_w² plus what a slowly
     /// correlated error moves in the step (for a 60 s time constant, 1/60 of its variance
     /// over half a second). So unlike covariance matching, whose innovations carry whatever
     /// correlated error the filter does not follow, it sees the white noise alone, however

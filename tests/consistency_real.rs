@@ -231,40 +231,6 @@ fn afr34zg_frames() -> Vec<adsb_tracker::feed::RawFrame> {
     consistency::read_frames_at(&path, None, 1000.0).unwrap()
 }
 
-/// Ground-velocity reports of one recording, airborne and over 100 m/s: (time s, east and
-/// north m/s), each aircraft's in order, a second copy of one transmission (the same values
-/// within `decode.duplicate_window_s`) dropped.
-fn fast_velocity_reports(frames: &[adsb_tracker::feed::RawFrame]) -> Vec<Vec<(f64, f64, f64)>> {
-    use adsb_tracker::decode::{Decoder, DecoderConfig, Message};
-    const KT_MPS: f64 = 1852.0 / 3600.0;
-    let config = Config::default_config().unwrap();
-    let mut decoder = Decoder::new(DecoderConfig {
-        fix_single_bit: config.decode.fix_single_bit,
-        recent_address_s: config.decode.recent_address_s,
-    });
-    let mut by_icao: BTreeMap<adsb_tracker::decode::Icao, Vec<(f64, f64, f64)>> = BTreeMap::new();
-    for f in frames {
-        let Ok(d) = decoder.decode(f) else { continue };
-        let Message::Velocity(v) = d.msg else {
-            continue;
-        };
-        let Some((e_kt, n_kt)) = v.ground_kt else {
-            continue;
-        };
-        let (e, n) = (e_kt * KT_MPS, n_kt * KT_MPS);
-        let reports = by_icao.entry(d.icao).or_default();
-        if let Some(&(t, pe, pn)) = reports.last() {
-            if d.time_s - t <= config.decode.duplicate_window_s && (pe, pn) == (e, n) {
-                continue;
-            }
-        }
-        if e.hypot(n) > 100.0 {
-            reports.push((d.time_s, e, n));
-        }
-    }
-    by_icao.into_values().collect()
-}
-
 /// What the windowed NIS can show where velocity reports repeat (`docs/evaluation.md`,
 /// "Velocity reports that repeat"). In 1-kt steps the velocity of an airliner in steady
 /// flight repeats the last report: on AFR34ZG 79 % of the airborne velocity reports do
@@ -285,15 +251,20 @@ fn afr34zg_velocity_reports_repeat_and_bound_the_nis() {
         77.0,
         82.0,
     );
-    // The steps between successive reports at most a second apart: squared, per axis.
+    // The steps between successive reports at most a second apart, both over 100 m/s:
+    // squared, per axis, m²/s².
+    const KT_MPS: f64 = 1852.0 / 3600.0;
+    let mut reports = consistency::VelocityReports::new(&Config::default_config().unwrap());
     let mut steps: Vec<f64> = Vec::new();
-    for reports in fast_velocity_reports(&frames) {
-        for w in reports.windows(2) {
-            if let [(ta, ea, na), (tb, eb, nb)] = w {
-                if tb - ta <= 1.0 {
-                    steps.push(((eb - ea).powi(2) + (nb - na).powi(2)) / 2.0);
-                }
-            }
+    for f in &frames {
+        let Some(r) = reports.push(f) else { continue };
+        let Some((tp, (pe, pn))) = r.previous else {
+            continue;
+        };
+        let (e, n) = r.en_kt;
+        let fast = |e: f64, n: f64| e.hypot(n) * KT_MPS > 100.0;
+        if r.t_s - tp <= 1.0 && fast(e, n) && fast(pe, pn) {
+            steps.push(((e - pe).powi(2) + (n - pn).powi(2)) * KT_MPS * KT_MPS / 2.0);
         }
     }
     assert!(steps.len() > 4000, "{} steps", steps.len());

@@ -51,10 +51,7 @@ pub fn sync_pipeline(config: &Config, algorithm: &str) -> SyncPipeline {
     let mut tracker_config = config.tracker.clone();
     tracker_config.algorithm = algorithm.to_string();
     SyncPipeline::new(
-        DecoderConfig {
-            fix_single_bit: config.decode.fix_single_bit,
-            recent_address_s: config.decode.recent_address_s,
-        },
+        decoder_config(config),
         AircraftConfig {
             cpr: CprConfig {
                 pair_window_s: config.cpr.pair_window_s,
@@ -67,6 +64,14 @@ pub fn sync_pipeline(config: &Config, algorithm: &str) -> SyncPipeline {
             duplicate_window_s: config.decode.duplicate_window_s,
         },
     )
+}
+
+/// The decoder the daemon runs with `config` (`[decode]`).
+pub fn decoder_config(config: &Config) -> DecoderConfig {
+    DecoderConfig {
+        fix_single_bit: config.decode.fix_single_bit,
+        recent_address_s: config.decode.recent_address_s,
+    }
 }
 
 /// Runs `frames` through the daemon's pipeline with the tracker `algorithm`.

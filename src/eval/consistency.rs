@@ -25,9 +25,9 @@
 //!   filter claims, so this share bounds how chi-square the windowed NIS can look
 //!   (`docs/evaluation.md`). A property of the recording: the same for every tracker.
 
-use super::bench::sync_pipeline;
+use super::bench::{decoder_config, sync_pipeline};
 use crate::config::Config;
-use crate::decode::{Decoder, DecoderConfig, Icao, Message};
+use crate::decode::{Decoder, Icao, Message};
 use crate::feed::RawFrame;
 use serde::Serialize;
 use std::collections::{BTreeMap, HashMap};
@@ -156,35 +156,28 @@ pub fn measure(frames: &[RawFrame], config: &Config, tracker: &str) -> BTreeMap<
     let mut groups: BTreeMap<String, Group> = BTreeMap::new();
     let mut first_t: HashMap<Icao, f64> = HashMap::new();
     let labels = tracker != "kalman-cv";
-    // The recording's own velocity reports, read by a decoder of their own: (time, east and
-    // north in knots) of each aircraft's last one, and the group its last state fell in.
-    let mut decoder = Decoder::new(DecoderConfig {
-        fix_single_bit: config.decode.fix_single_bit,
-        recent_address_s: config.decode.recent_address_s,
-    });
-    let mut last_velocity: HashMap<Icao, (f64, (f64, f64))> = HashMap::new();
-    let mut last_key: HashMap<Icao, (String, bool)> = HashMap::new();
+    // The recording's own velocity reports, and the NACp group and ground flag of each
+    // aircraft's last state: a report is counted in that group.
+    let mut velocities = VelocityReports::new(config);
+    let mut last_state: HashMap<Icao, (Option<u8>, bool)> = HashMap::new();
     for f in frames {
-        if let Ok(d) = decoder.decode(f) {
-            if let Message::Velocity(v) = d.msg {
-                if let Some(en_kt) = v.ground_kt {
-                    note_velocity(
-                        &mut groups,
-                        &mut last_velocity,
-                        &last_key,
-                        d.icao,
-                        (d.time_s, en_kt),
-                        config.decode.duplicate_window_s,
-                    );
+        if let Some(r) = velocities.push(f) {
+            if let (Some((tp, en_prev)), Some(&(nac_p, false))) =
+                (r.previous, last_state.get(&r.icao))
+            {
+                let dt = r.t_s - tp;
+                if dt > 0.0 && dt <= HELD_MAX_GAP_S {
+                    let g = groups.entry(group_key(nac_p)).or_default();
+                    g.velocity_reports += 1;
+                    g.velocity_held += u64::from(en_prev == r.en_kt);
                 }
             }
         }
         let Some(u) = pipeline.push(f) else { continue };
         let Some(s) = &u.state else { continue };
         let t0 = *first_t.entry(s.icao).or_insert(s.t);
-        let key = s.nac_p.map_or("none".to_string(), |n| n.to_string());
-        last_key.insert(s.icao, (key.clone(), s.on_ground));
-        let g = groups.entry(key).or_default();
+        last_state.insert(s.icao, (s.nac_p, s.on_ground));
+        let g = groups.entry(group_key(s.nac_p)).or_default();
         g.updates += 1;
         if s.on_ground {
             continue;
@@ -230,33 +223,63 @@ pub fn measure(frames: &[RawFrame], config: &Config, tracker: &str) -> BTreeMap<
     groups
 }
 
-/// Counts one velocity report `(t, (east, north) kt)` of `icao` against its previous one,
-/// in the group of the aircraft's last state (none yet, or on the ground: not counted).
-fn note_velocity(
-    groups: &mut BTreeMap<String, Group>,
-    last: &mut HashMap<Icao, (f64, (f64, f64))>,
-    last_key: &HashMap<Icao, (String, bool)>,
-    icao: Icao,
-    report: (f64, (f64, f64)),
+/// The group of a declared NACp ("none" when nothing is declared).
+fn group_key(nac_p: Option<u8>) -> String {
+    nac_p.map_or("none".to_string(), |n| n.to_string())
+}
+
+/// One ground-velocity report of a recording ([`VelocityReports`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct VelocityReport {
+    pub icao: Icao,
+    /// Feed time, s.
+    pub t_s: f64,
+    /// East and north, kt, as reported.
+    pub en_kt: (f64, f64),
+    /// The aircraft's previous report (time s, east and north kt), if any.
+    pub previous: Option<(f64, (f64, f64))>,
+}
+
+/// A recording's ground-velocity reports (subtypes 1 and 2) frame by frame, each with the
+/// aircraft's previous one; a second copy of one transmission (the same values within
+/// `decode.duplicate_window_s` of the last) is not a report. Its own decoder: a property of
+/// the recording, not of a tracker.
+pub struct VelocityReports {
+    decoder: Decoder,
+    last: HashMap<Icao, (f64, (f64, f64))>,
     duplicate_window_s: f64,
-) {
-    let (t, en_kt) = report;
-    let previous = last.get(&icao).copied();
-    if let Some((tp, en_prev)) = previous {
-        let dt = t - tp;
-        if dt <= duplicate_window_s && en_prev == en_kt {
-            // A second copy of one transmission (or an older one): not a report.
-            return;
-        }
-        if let Some((key, false)) = last_key.get(&icao) {
-            if dt > 0.0 && dt <= HELD_MAX_GAP_S {
-                let g = groups.entry(key.clone()).or_default();
-                g.velocity_reports += 1;
-                g.velocity_held += u64::from(en_prev == en_kt);
-            }
+}
+
+impl VelocityReports {
+    pub fn new(config: &Config) -> Self {
+        Self {
+            decoder: Decoder::new(decoder_config(config)),
+            last: HashMap::new(),
+            duplicate_window_s: config.decode.duplicate_window_s,
         }
     }
-    last.insert(icao, report);
+
+    /// The velocity report `f` carries, if any.
+    pub fn push(&mut self, f: &RawFrame) -> Option<VelocityReport> {
+        let d = self.decoder.decode(f).ok()?;
+        let Message::Velocity(v) = d.msg else {
+            return None;
+        };
+        let en_kt = v.ground_kt?;
+        let previous = self.last.get(&d.icao).copied();
+        if let Some((tp, en_prev)) = previous {
+            if d.time_s - tp <= self.duplicate_window_s && en_prev == en_kt {
+                return None;
+            }
+        }
+        self.last.insert(d.icao, (d.time_s, en_kt));
+        Some(VelocityReport {
+            icao: d.icao,
+            t_s: d.time_s,
+            en_kt,
+            previous,
+        })
+    }
 }
 
 fn f(v: Option<f64>, digits: usize) -> String {

@@ -47,10 +47,12 @@ fn reports(turn_deg_s: f64, seed: u64) -> Vec<Measurement> {
         let position = Observed {
             value: pos + Vector3::new(noise(10.0), noise(10.0), noise(15.0)),
             cov: Matrix3::from_diagonal(&Vector3::new(100.0, 100.0, 225.0)),
+            grid: None,
         };
         let velocity = Observed {
             value: vel + Vector3::new(noise(0.5), noise(0.5), noise(0.5)),
             cov: Matrix3::identity() * 0.27,
+            grid: None,
         };
         out.push(Measurement {
             t_s: t,

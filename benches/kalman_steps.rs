@@ -35,10 +35,12 @@ fn report() -> (Observed, Observed) {
         Observed {
             value: Vector3::new(12.0, -7.0, 9005.0),
             cov: Matrix3::from_diagonal(&Vector3::new(100.0, 100.0, 225.0)),
+            grid: None,
         },
         Observed {
             value: Vector3::new(120.5, 0.3, -0.2),
             cov: Matrix3::identity() * 0.27,
+            grid: None,
         },
     )
 }
@@ -198,11 +200,13 @@ fn imm_filtering(c: &mut Criterion) {
                         9000.0,
                     ),
                     cov: Matrix3::from_diagonal(&Vector3::new(100.0, 100.0, 225.0)),
+                    grid: None,
                 })
             } else {
                 Observation::Velocity(Observed {
                     value: Vector3::new(120.0 * c + 0.3 * wobble, 120.0 * s, 0.1 * wobble),
                     cov: Matrix3::identity() * 0.27,
+                    grid: None,
                 })
             }
         })

@@ -14,10 +14,12 @@ fn report(t_s: f64) -> Measurement {
         position: Some(Observed {
             value: Vector3::new(230.0 * t_s + wobble_m, 40.0 * t_s - wobble_m, 10_000.0),
             cov: Matrix3::from_diagonal(&Vector3::new(900.0, 900.0, 100.0)),
+            grid: None,
         }),
         velocity: Some(Observed {
             value: Vector3::new(230.0, 40.0, 0.0),
             cov: Matrix3::from_diagonal(&Vector3::new(2.25, 2.25, 1.0)),
+            grid: None,
         }),
     }
 }

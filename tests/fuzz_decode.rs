@@ -59,7 +59,7 @@ proptest! {
             let mut t = 0.0;
             for &(dt, e, n, u, ve, vn, kind, var) in &reports {
                 t += dt;
-                let obs = |v: Vector3<f64>| Observed { value: v, cov: Matrix3::identity() * var };
+                let obs = |v: Vector3<f64>| Observed { value: v, cov: Matrix3::identity() * var, grid: None };
                 let m = Measurement {
                     t_s: t,
                     position: (kind != 1).then(|| obs(Vector3::new(e, n, u))),

@@ -115,6 +115,19 @@ const SIGNAL_MEAN_MESSAGES: f32 = 8.0;
 const KT_QUANT_VAR: f64 = KT_TO_MPS * KT_TO_MPS / 12.0;
 const VRATE_QUANT_VAR: f64 = (64.0 * FPM_TO_MPS) * (64.0 * FPM_TO_MPS) / 12.0;
 
+/// The step of an airborne ground velocity's east and north components, m/s: 1 kt, or 4 kt
+/// in subtype 2 (supersonic; DO-260B §2.2.3.2.6.2). Each component is its speed rounded to
+/// the step, which the simulator's encoder does too (`sim::encode`); a recording agrees:
+/// AFR34ZG's reports over 20 s at cruise average 0.03 ± 0.03 m/s above the speed its
+/// positions give, where a truncated magnitude would sit 0.26 m/s below.
+pub fn ground_velocity_step_mps(subtype: u8) -> f64 {
+    if subtype == 2 {
+        4.0 * KT_TO_MPS
+    } else {
+        KT_TO_MPS
+    }
+}
+
 /// Settings every aircraft shares.
 #[derive(Clone, Debug)]
 pub struct AircraftConfig {
@@ -447,7 +460,11 @@ impl Aircraft {
         let cov = crate::track::geo::rotate_diag_cov(&rotation, &Vector3::new(h_var, h_var, v_var));
         Some(Measurement {
             t_s: t,
-            position: Some(Observed { value: enu, cov }),
+            position: Some(Observed {
+                value: enu,
+                cov,
+                grid: None,
+            }),
             velocity: None,
         })
     }
@@ -457,15 +474,21 @@ impl Aircraft {
         let (h95, v95) = nacv_bounds_mps(v.nac_v);
         let sh = h95 / RADIUS95_PER_SIGMA_2D;
         let sv = v95 / BOUND95_PER_SIGMA_1D;
-        let h_var = sh * sh + KT_QUANT_VAR;
+        // Subtype 2 (supersonic) sends 4-kt steps; its rounding variance is 16 times.
+        let step_mps = ground_velocity_step_mps(v.subtype);
+        let h_var = sh * sh + step_mps * step_mps / 12.0;
         let (vu, vu_var) = match v.vrate_fpm {
             Some(r) => (f64::from(r) * FPM_TO_MPS, sv * sv + VRATE_QUANT_VAR),
             None => (0.0, UNMEASURED_VARIANCE),
         };
-        let velocity = self.velocity_observation(
+        let mut velocity = self.velocity_observation(
             Vector3::new(ve_kt * KT_TO_MPS, vn_kt * KT_TO_MPS, vu),
             (h_var, h_var, vu_var),
         )?;
+        velocity.grid = Some(crate::track::quantised::Grid::new(
+            step_mps,
+            self.last_rotation.as_ref()?,
+        ));
         Some(Measurement {
             t_s: t,
             position: None,
@@ -480,6 +503,7 @@ impl Aircraft {
         Some(Observed {
             value: rotation * local,
             cov: crate::track::geo::rotate_diag_cov(rotation, &Vector3::new(var.0, var.1, var.2)),
+            grid: None,
         })
     }
 
@@ -766,6 +790,7 @@ mod tests {
             position: Some(Observed {
                 value: Vector3::new(east_m, 0.0, 10_000.0),
                 cov: Matrix3::identity() * 25.0,
+                grid: None,
             }),
             velocity: None,
         };
@@ -775,6 +800,7 @@ mod tests {
             velocity: Some(Observed {
                 value: Vector3::new(200.0, 0.0, 0.0),
                 cov: Matrix3::identity(),
+                grid: None,
             }),
         };
         for name in crate::config::ALGORITHMS {

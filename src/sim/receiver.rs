@@ -26,7 +26,11 @@
 //! stationary law); undeclared accuracy (`declare_accuracy = false`: no operational
 //! status, NACv 0); a position valid `position_validity_offset_s` before the frame that
 //! carries it, and a velocity valid `velocity_validity_offset_s` before its frame (real
-//! velocity reports are about a second older than their positions: `eval::latency`). With
+//! velocity reports are about a second older than their positions: `eval::latency`); and a
+//! position valid at a random time about that, τ ~ N(0, `position_validity_jitter_s`²) per
+//! report, drawn on its own stream (a transponder whose latency varies, or a receiver that
+//! stamps frames by the block of samples they came in: AFR34ZG's positions read as 40 ms
+//! of such noise along the track, `track::noise::TimingNoise`). With
 //! every key at its default the random streams are the ones the simulator
 //! always drew, so existing scenarios give byte-identical files.
 //!
@@ -129,6 +133,7 @@ struct Config {
     stale_interval_s: f64,
     stale_reports: u32,
     stale_age_s: f64,
+    position_jitter_s: f64,
     ref_lat_rad: f64,
     ref_lon_rad: f64,
     ref_m: f64,
@@ -172,6 +177,9 @@ struct Emitter {
     bias: Option<(f64, f64, f64)>,
     /// Its own random stream, so the white-noise draws stay those of the other settings.
     bias_rng: StdRng,
+    /// The position reports' random validity times (`position_validity_jitter_s`), on their
+    /// own stream for the same reason.
+    jitter_rng: StdRng,
     /// Stale-position bursts (`stale_position_interval_s`): the flight queried at the
     /// burst's positions' times (its own cursor), when the next burst starts, s, how many
     /// reports of the current one are left, and their own random stream.
@@ -247,6 +255,7 @@ impl Emitter {
             velocity_flight,
             bias: None,
             bias_rng: StdRng::seed_from_u64(mix(seed ^ mix(index as u64) ^ 0x6761_7573)),
+            jitter_rng: StdRng::seed_from_u64(mix(seed ^ mix(index as u64) ^ 0x6a69_7474)),
             stale,
         }
     }
@@ -294,7 +303,8 @@ impl Emitter {
                     (None, None) => state,
                 };
                 let (be, bn) = self.step_bias(t_s, cfg);
-                let f = self.position_frame(&reported, be, bn, cfg);
+                let (je, jn) = self.validity_jitter(&reported, cfg);
+                let f = self.position_frame(&reported, be + je, bn + jn, cfg);
                 self.odd = !self.odd;
                 f
             }
@@ -310,6 +320,18 @@ impl Emitter {
         };
         self.reschedule(s, tick, cfg);
         self.deliver(s, tick, frame, &state, cfg, out)
+    }
+
+    /// Where a position valid τ away from its time moves it, (east, north) m: −v τ, τ drawn
+    /// from N(0, `position_validity_jitter_s`²) per report (module doc); (0, 0) without the
+    /// key. Within τ (tens of ms) the aircraft's velocity is constant to a millimetre of
+    /// position at 1 m/s², so −v τ is the truth at the other time.
+    fn validity_jitter(&mut self, s: &TruthState, cfg: &Config) -> (f64, f64) {
+        if cfg.position_jitter_s <= 0.0 {
+            return (0.0, 0.0);
+        }
+        let tau = self.jitter_rng.sample::<f64, _>(StandardNormal) * cfg.position_jitter_s;
+        (-s.ve_mps * tau, -s.vn_mps * tau)
     }
 
     /// The correlated GNSS error (east, north) at `t_s`, m: the Gauss–Markov process stepped
@@ -597,6 +619,7 @@ pub fn run(scenario: &Scenario, seed: u64, out_prefix: &Path) -> Result<SimSumma
         stale_interval_s: st.stale_position_interval_s,
         stale_reports: st.stale_position_reports,
         stale_age_s: st.stale_position_age_s,
+        position_jitter_s: st.position_validity_jitter_s,
         ref_lat_rad: ref_lat,
         ref_lon_rad: scenario.reference.lon_deg.to_radians(),
         ref_m,
@@ -690,6 +713,42 @@ mod tests {
         for c in &counts[1..] {
             assert!((850..1150).contains(c), "{counts:?}");
         }
+    }
+
+    /// A position valid at a random time (`position_validity_jitter_s`): the report moves by
+    /// −v τ, along the velocity only, with σ_τ |v| (9.2 m for 40 ms at 230 m/s), white; none
+    /// without the key (and no draw from the stream).
+    #[test]
+    fn validity_jitter_moves_a_position_along_its_velocity() {
+        let text = include_str!("../../fixtures/scenarios/airliner-timing.toml");
+        let scenario = crate::sim::scenario::Scenario::from_toml_str(text).unwrap();
+        let plan = scenario.plan().unwrap().remove(0);
+        let mut cfg = test_config();
+        let mut e = Emitter::new(plan.clone(), 0, 7, &cfg);
+        let mut state = e.flight.state_at(10.0);
+        (state.ve_mps, state.vn_mps) = (230.0 * 0.6, 230.0 * 0.8);
+        assert_eq!(e.validity_jitter(&state, &cfg), (0.0, 0.0));
+        cfg.position_jitter_s = 0.04;
+        let mut e = Emitter::new(plan, 0, 7, &cfg);
+        let n = 20_000;
+        let (mut along2, mut across2, mut lag1, mut prev) = (0.0, 0.0, 0.0, 0.0);
+        for _ in 0..n {
+            let (de, dn) = e.validity_jitter(&state, &cfg);
+            let along = 0.6 * de + 0.8 * dn;
+            along2 += along * along;
+            across2 += (-0.8 * de + 0.6 * dn).powi(2);
+            lag1 += along * prev;
+            prev = along;
+        }
+        let nf = f64::from(n);
+        let sigma = (along2 / nf).sqrt();
+        assert!((sigma - 9.2).abs() < 0.2, "σ along {sigma}");
+        assert!(across2 / nf < 1e-18);
+        assert!(
+            (lag1 / along2).abs() < 0.03,
+            "lag-1 correlation {}",
+            lag1 / along2
+        );
     }
 
     /// The correlated GNSS error: its stationary σ and its lag-Δ autocorrelation e^(−Δ/τ),
@@ -806,6 +865,7 @@ mod tests {
             stale_interval_s: 0.0,
             stale_reports: 2,
             stale_age_s: 0.6,
+            position_jitter_s: 0.0,
             ref_lat_rad: 0.0,
             ref_lon_rad: 0.0,
             ref_m: 6.4e6,

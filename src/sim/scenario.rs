@@ -115,6 +115,12 @@ pub struct Settings {
     /// positions (`afr34zg-cdg-tls.jsonl`: 1.07 s, `eval::latency`). Default 0. -2..=2.
     #[serde(default)]
     pub velocity_validity_offset_s: f64,
+    /// Random position validity, s: each position a frame carries is the truth at a time
+    /// τ ~ N(0, σ²) away from its validity time (after `position_validity_offset_s`), τ
+    /// drawn per report: timing noise, which moves a report by −v τ along the track.
+    /// Default 0. 0..=1.
+    #[serde(default)]
+    pub position_validity_jitter_s: f64,
     /// Bursts of stale positions: the mean interval between them, s (exponentially
     /// distributed; 0 = none, the default). In each burst `stale_position_reports` position
     /// reports in a row carry the position of `stale_position_age_s` earlier: what the real
@@ -480,6 +486,12 @@ impl Scenario {
             -2.0,
             2.0,
         )?;
+        check_range(
+            "settings.position_validity_jitter_s",
+            s.position_validity_jitter_s,
+            0.0,
+            1.0,
+        )?;
         if s.stale_position_interval_s != 0.0 {
             check_range(
                 "settings.stale_position_interval_s",
@@ -761,6 +773,7 @@ pub fn fleet(spec: &FleetSpec) -> Result<Scenario, SimError> {
             gnss_bias_tau_s: default_gnss_bias_tau_s(),
             position_validity_offset_s: 0.0,
             velocity_validity_offset_s: 0.0,
+            position_validity_jitter_s: 0.0,
             stale_position_interval_s: 0.0,
             stale_position_reports: default_stale_position_reports(),
             stale_position_age_s: default_stale_position_age_s(),

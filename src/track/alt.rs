@@ -7,8 +7,10 @@
 use super::{Measurement, Observed, TrackError};
 use nalgebra::{SMatrix, SVector};
 
-/// What a tracker must do with one report.
+/// What a tracker must do with one report. Returned by value and matched at once, never
+/// stored: the size of its initiating variant (two reports) costs nothing kept.
 #[derive(Clone, Copy, Debug, PartialEq)]
+#[allow(clippy::large_enum_variant)]
 pub(crate) enum Step {
     /// No track after this report (none yet, or a long gap dropped it and the report had no
     /// position): the tracker clears its track.

@@ -10,6 +10,7 @@
 //! for any T: ADS-B reports are irregular, so T is always the actual time between reports.
 
 use super::kalman::{self, Innovation, MotionModel};
+use super::quantised::OnGrid;
 use super::{Estimate, FlightMode, Measurement, Observed, PositionPrediction, TrackError, Tracker};
 use nalgebra::{Matrix3, SMatrix, SVector, Vector3};
 
@@ -461,8 +462,11 @@ impl Tracker for CvKalman {
                     &kalman::block3(3),
                     &vel.cov,
                 )?;
+                let on_grid = vel
+                    .grid
+                    .and_then(|g| OnGrid::of(&inn.residual, &inn.s, &vel.cov, &vel.value, &g));
                 self.nis.push(
-                    super::nis::horizontal(&inn, &vel.cov),
+                    on_grid.map_or_else(|| super::nis::horizontal(&inn, &vel.cov), |g| g.nis()),
                     super::nis::horizontal_dof(None, Some(vel)),
                 );
                 None
@@ -545,6 +549,7 @@ mod tests {
         Observed {
             value,
             cov: Matrix3::from_diagonal(&sigma.component_mul(sigma)),
+            grid: None,
         }
     }
 
@@ -641,10 +646,12 @@ mod tests {
                     let l = Matrix3::from_fn(|_, _| rng.gen_range(-20.0..20.0));
                     l * l.transpose() + Matrix3::identity()
                 },
+                grid: None,
             };
             let velocity = Observed {
                 value: noisy(vel, 1.0, &mut rng),
                 cov: Matrix3::from_diagonal(&Vector3::new(0.3, 0.4, 2.0)),
+                grid: None,
             };
             let m = Measurement {
                 t_s,
@@ -945,6 +952,7 @@ mod tests {
             let negative = |offset: usize| Observed {
                 value: kalman::rows::<3, _>(&x, offset) + Vector3::repeat(3.0),
                 cov: kalman::block::<3, 3, _, _>(&p, offset, offset) * -0.9,
+                grid: None,
             };
             Measurement {
                 t_s,

@@ -52,8 +52,9 @@
 
 use super::kalman::{self, Innovation, MotionModel};
 use super::noise::BlockStat;
+use super::quantised::{Grid, OnGrid};
 use super::{Observed, TrackError, UNMEASURED_VARIANCE};
-use nalgebra::{SMatrix, SVector};
+use nalgebra::{Matrix3, SMatrix, SVector, Vector3};
 
 /// Tuning of the criterion and the suppressor.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -207,8 +208,13 @@ pub struct Guarded {
     /// NIS of the nominal innovation.
     pub nis: f64,
     /// NIS of the nominal innovation over its measured horizontal components
-    /// ([`super::nis::horizontal`]): what the track's windowed NIS sums.
+    /// ([`super::nis::horizontal`]): what the gate-like tests of the trackers read (the
+    /// outlier test, the IMM's "velocity fits CV").
     pub nis_horizontal: f64,
+    /// A velocity report on a grid ([`Observed::grid`](super::Observed)) with the
+    /// nominal claim about it, whose quantile NIS ([`OnGrid::nis`]) is the report's term of
+    /// the track's windowed NIS; `None` for any other report.
+    pub on_grid: Option<OnGrid>,
     /// ln N(ε; 0, S) of the nominal innovation.
     pub log_likelihood: f64,
     /// The criterion held (a divergence event).
@@ -223,9 +229,40 @@ pub struct Guarded {
     pub blocks: [BlockStat; 2],
 }
 
+impl Guarded {
+    /// The report's term of the track's windowed NIS: the quantile NIS of a report on a
+    /// grid ([`super::quantised`]), else the horizontal NIS.
+    pub fn published_nis(&self) -> f64 {
+        self.on_grid.map_or(self.nis_horizontal, |g| g.nis())
+    }
+}
+
 /// Components whose variance is below half of [`UNMEASURED_VARIANCE`] count as measured.
 fn measured(r_ii: f64) -> bool {
     r_ii < 0.5 * UNMEASURED_VARIANCE
+}
+
+/// The east and north of a block's innovation and of H P⁻ Hᵀ = S − R over them (entries
+/// ee, en, nn), when both are measured.
+#[allow(clippy::type_complexity)]
+fn horizontal_pair<const M: usize>(
+    inn: &Innovation<M>,
+    r: &SMatrix<f64, M, M>,
+    start: usize,
+) -> Option<([f64; 2], [f64; 3])> {
+    let (e, n) = (start, start + 1);
+    let entry = |i: usize, j: usize| -> Option<f64> { Some(inn.s.get((i, j))? - r.get((i, j))?) };
+    if !(measured(*r.get((e, e))?) && measured(*r.get((n, n))?)) {
+        return None;
+    }
+    Some((
+        [*inn.residual.get(e)?, *inn.residual.get(n)?],
+        [
+            entry(e, e)?,
+            0.5 * (entry(e, n)? + entry(n, e)?),
+            entry(n, n)?,
+        ],
+    ))
 }
 
 /// Paper 000's criterion (eq. 24) and Adapt (eq. 29) for one 3-vector block starting at
@@ -246,7 +283,15 @@ fn block_check<const N: usize, const M: usize>(
     let mut any = false;
     for i in 0..3 {
         if i == 2 {
-            horizontal = BlockStat { e2, tr_s, tr_r };
+            horizontal = BlockStat {
+                e2,
+                tr_s,
+                tr_r,
+                ..BlockStat::default()
+            };
+            if let Some(h) = horizontal_pair(inn, r, start) {
+                (horizontal.e_h, horizontal.hph_h) = h;
+            }
         }
         let (m, s) = (start + i, state_offset + i);
         let (Some(&e), Some(&s_mm), Some(&r_mm)) =
@@ -303,6 +348,7 @@ pub fn guarded_update<const N: usize>(
             &kalman::block3(0),
             &o.cov,
             &[0],
+            None,
             params,
             previous_run,
             x_out,
@@ -314,6 +360,7 @@ pub fn guarded_update<const N: usize>(
             &kalman::block3(3),
             &o.cov,
             &[3],
+            o.grid.as_ref(),
             params,
             previous_run,
             x_out,
@@ -332,6 +379,7 @@ pub fn guarded_update<const N: usize>(
                 &kalman::blocks6(0, 3),
                 &r,
                 &[0, 3],
+                None,
                 params,
                 previous_run,
                 x_out,
@@ -343,7 +391,8 @@ pub fn guarded_update<const N: usize>(
 
 /// [`guarded_update`] for an M-vector z = x[sel] + v whose 3-blocks sit at the state offsets
 /// `blocks`; both Kalman updates are the specialised [`kalman::update_selected_to`], from the
-/// prediction's covariance into the caller's `x_out`, `p_out`.
+/// prediction's covariance into the caller's `x_out`, `p_out`. `grid`: z is one
+/// report on a grid of that step ([`Guarded::on_grid`]; a 3-vector only, else ignored).
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
 fn guarded_update_m<const N: usize, const M: usize>(
@@ -352,12 +401,30 @@ fn guarded_update_m<const N: usize, const M: usize>(
     sel: &[usize; M],
     r: &SMatrix<f64, M, M>,
     blocks: &[usize],
+    grid: Option<&Grid>,
     params: &DivergenceParams,
     previous_run: u32,
     x_out: &mut SVector<f64, N>,
     p_out: &mut SMatrix<f64, N, N>,
 ) -> Result<Guarded, TrackError> {
     let inn = kalman::update_selected_to(&pred.x, &pred.covariance(1.0), z, sel, r, x_out, p_out)?;
+    let on_grid = match grid {
+        Some(g) if M == 3 => {
+            let three =
+                |v: &SVector<f64, M>| Vector3::from_fn(|i, _| v.get(i).copied().unwrap_or(0.0));
+            let three3 = |m: &SMatrix<f64, M, M>| {
+                Matrix3::from_fn(|i, j| m.get((i, j)).copied().unwrap_or(0.0))
+            };
+            OnGrid::of(
+                &three(&inn.residual),
+                &three3(&inn.s),
+                &three3(r),
+                &three(z),
+                g,
+            )
+        }
+        _ => None,
+    };
     let mut diverged = false;
     let mut adapt = 1.0_f64;
     let mut stats = [BlockStat::default(); 2];
@@ -387,6 +454,7 @@ fn guarded_update_m<const N: usize, const M: usize>(
     Ok(Guarded {
         nis: inn.nis,
         nis_horizontal: super::nis::horizontal(&inn, r),
+        on_grid,
         log_likelihood: inn.log_likelihood(),
         diverged,
         run,
@@ -514,6 +582,7 @@ mod tests {
         Observation::Position(Observed {
             value,
             cov: Matrix3::identity() * sigma_m * sigma_m,
+            grid: None,
         })
     }
 
@@ -593,6 +662,7 @@ mod tests {
         let obs = Observation::Position(Observed {
             value: Vector3::new(200.0, 0.0, 0.0),
             cov,
+            grid: None,
         });
         let g = updated(&pred, &obs, &every_event(), 0).unwrap();
         assert!(g.diverged && g.adapt > 1.0);

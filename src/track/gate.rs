@@ -1477,6 +1477,7 @@ mod tests {
                 q(v.z + n.sample(rng) * 0.5, VRATE_LSB_MPS),
             ),
             cov: Matrix3::from_diagonal(&Vector3::new(sigma * sigma, sigma * sigma, 0.0625)),
+            grid: None,
         }
     }
 
@@ -1825,6 +1826,7 @@ mod tests {
                 &Observed {
                     value: heading_speed(heading, 100.0, 0.0),
                     cov,
+                    grid: None,
                 },
                 true,
             );
@@ -1928,6 +1930,7 @@ mod tests {
                 &Observed {
                     value: heading_speed(h, 100.0, 0.0),
                     cov,
+                    grid: None,
                 },
                 false,
             );
@@ -2025,7 +2028,15 @@ mod tests {
             let vu = if t >= 100.0 { climb_mps } else { 0.0 };
             let vu = ((vu + noise.sample(&mut rng)) / VRATE_LSB_MPS).round() * VRATE_LSB_MPS;
             let value = Vector3::new(88.0, 66.0, vu);
-            let r = *gate.push(t, &Observed { value, cov }, true);
+            let r = *gate.push(
+                t,
+                &Observed {
+                    value,
+                    cov,
+                    grid: None,
+                },
+                true,
+            );
             if (10.0..100.0).contains(&t) {
                 level += 1;
                 fired += usize::from(r.flags.vertical);
@@ -2182,6 +2193,7 @@ mod tests {
                 &Observed {
                     value: heading_speed(h, 100.0, 0.0),
                     cov,
+                    grid: None,
                 },
                 false,
             );
@@ -2197,6 +2209,7 @@ mod tests {
                 &Observed {
                     value: heading_speed(40.0 * k as f64, 3.0, 0.0),
                     cov,
+                    grid: None,
                 },
                 false,
             );
@@ -2221,6 +2234,7 @@ mod tests {
                 &Observed {
                     value: heading_speed(heading, 100.0, 0.0),
                     cov,
+                    grid: None,
                 },
                 false,
             );
@@ -2246,6 +2260,7 @@ mod tests {
                 &Observed {
                     value: heading_speed(heading, 100.0, 0.0),
                     cov,
+                    grid: None,
                 },
                 false,
             );
@@ -2266,6 +2281,7 @@ mod tests {
                 &Observed {
                     value: Vector3::new(100.0, 0.0, 50.0),
                     cov,
+                    grid: None,
                 },
                 true,
             );
@@ -2279,6 +2295,7 @@ mod tests {
             &Observed {
                 value: Vector3::new(0.0, 100.0, 0.0),
                 cov,
+                grid: None,
             },
             true,
         );
@@ -2287,6 +2304,7 @@ mod tests {
             &Observed {
                 value: Vector3::new(0.0, 100.0, 0.0),
                 cov,
+                grid: None,
             },
             true,
         );
@@ -2297,6 +2315,7 @@ mod tests {
             &Observed {
                 value: Vector3::new(0.0, 100.0, 0.0),
                 cov,
+                grid: None,
             },
             true,
         );
@@ -2683,7 +2702,7 @@ mod tests {
             for (dt, ve, vn, vu, var_h, var_u, measured) in reports {
                 t += dt;
                 let cov = Matrix3::from_diagonal(&Vector3::new(var_h.abs(), var_h.abs(), var_u.abs()));
-                let r = *gate.push(t, &Observed { value: Vector3::new(ve, vn, vu), cov }, measured);
+                let r = *gate.push(t, &Observed { value: Vector3::new(ve, vn, vu), cov, grid: None }, measured);
                 for v in [
                     r.turn_rate_rad_s,
                     r.onset_turn_rate_rad_s,

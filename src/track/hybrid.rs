@@ -252,6 +252,7 @@ fn to_local_axes(pos_m: &Vector3<f64>, v: &Observed) -> Observed {
     Observed {
         value: rt * v.value,
         cov: rt * v.cov * r,
+        grid: v.grid.map(|g| g.turned(&rt)),
     }
 }
 
@@ -463,7 +464,7 @@ impl HybridTracker {
                         - p.fixed_view::<3, 3>(3, 3);
                 }
                 self.stats.cv_updates += 1;
-                g.nis_horizontal
+                g.published_nis()
             }
             Branch::Imm { .. } => {
                 self.imm.step(dt_s, obs)?;
@@ -472,7 +473,7 @@ impl HybridTracker {
                 self.velocity_correction_cov = *self.imm.velocity_correction_cov();
                 self.cv_divergence_run = 0;
                 self.stats.imm_updates += 1;
-                self.imm.nis(best)
+                self.imm.published_nis()
             }
         };
         self.nis.push(nis, obs.horizontal_dof());
@@ -507,6 +508,7 @@ impl HybridTracker {
             let derived = Observed {
                 value: kalman::rows::<3, _>(&x, 3),
                 cov: self.velocity_correction_cov,
+                grid: None,
             };
             self.gate.push(m.t_s, &to_local_axes(&pos, &derived), false);
         }
@@ -591,6 +593,18 @@ impl HybridTracker {
         match &self.branch {
             Branch::Cv { x, .. } => kalman::rows::<3, _>(x, 0),
             Branch::Imm { .. } => kalman::rows::<3, _>(&self.imm.combined_state(), 0),
+        }
+    }
+
+    /// The filter's current position and velocity in the track's frame, m and m/s (the
+    /// IMM's combined state formed once).
+    fn position_velocity(&self) -> (Vector3<f64>, Vector3<f64>) {
+        match &self.branch {
+            Branch::Cv { x, .. } => (kalman::rows::<3, _>(x, 0), kalman::rows::<3, _>(x, 3)),
+            Branch::Imm { .. } => {
+                let x = self.imm.combined_state();
+                (kalman::rows::<3, _>(&x, 0), kalman::rows::<3, _>(&x, 3))
+            }
         }
     }
 
@@ -850,8 +864,9 @@ impl Tracker for HybridTracker {
             }
             Start::Running => {
                 // The report with the learned noise: the filter and the gate weigh it so.
-                let up = local_up(&self.position_m());
-                let m = &self.noise.prepare(m, &up);
+                let (pos, vel) = self.position_velocity();
+                let up = local_up(&pos);
+                let m = &self.noise.prepare(m, &up, &vel, &self.params.noise);
                 let Some(obs) = Observation::of(m.position.as_ref(), m.velocity.as_ref()) else {
                     return Ok(());
                 };
@@ -964,6 +979,7 @@ mod tests {
         let v = Observed {
             value: 230.0 * Vector3::new(theta.cos(), 0.0, -theta.sin()),
             cov: Matrix3::identity(),
+            grid: None,
         };
         let local = to_local_axes(&pos, &v);
         assert!(
@@ -1112,6 +1128,7 @@ mod tests {
                 let position = Observed {
                     value: tr.pos + Vector3::from_fn(|i, _| POS_SIGMA[i] * noise()),
                     cov: pos_cov,
+                    grid: None,
                 };
                 let mut noise = || n.sample(rng) * VEL_SIGMA_MPS;
                 let velocity = Observed {
@@ -1121,6 +1138,7 @@ mod tests {
                         q(tr.vel.z + noise(), VRATE_LSB_MPS),
                     ),
                     cov: vel_cov,
+                    grid: None,
                 };
                 let (position, velocity) = match feed {
                     Feed::Joint => (Some(position), Some(velocity)),
@@ -1867,10 +1885,12 @@ mod tests {
                         pos_cov[(i, i)].min(225.0).sqrt() * n01.sample(&mut rng)
                     }),
                 cov: pos_cov,
+                grid: None,
             };
             let velocity = Observed {
                 value: vel + Vector3::from_fn(|_, _| 0.5 * n01.sample(&mut rng)),
                 cov: vel_cov,
+                grid: None,
             };
             let m = match rng.gen_range(0..3) {
                 0 => Measurement {
@@ -1999,10 +2019,12 @@ mod tests {
         let v = Observed {
             value: Vector3::new(100.0, 0.0, 0.0),
             cov: Matrix3::identity() * 0.25,
+            grid: None,
         };
         let p = Observed {
             value: Vector3::new(0.0, 0.0, 1000.0),
             cov: Matrix3::identity() * 100.0,
+            grid: None,
         };
         // A velocity alone waits; the position then starts the track with that velocity.
         t.update(&Measurement {

@@ -32,6 +32,7 @@ use super::models::{
 };
 use super::noise::{local_up, BlockStat, NoiseLearner, NoiseParams};
 use super::outlier::{OutlierGate, OutlierParams};
+use super::quantised::OnGrid;
 use super::{
     Estimate, FlightMode, Lateral, Measurement, Observed, SpeedTrend, TrackError, Tracker,
     TurnDirection, VerticalTrend,
@@ -343,6 +344,8 @@ struct ModeOutcome {
     /// innovation.
     nis: f64,
     log_likelihood: f64,
+    /// A velocity report on a grid with this mode's claim about it ([`Guarded::on_grid`]).
+    on_grid: Option<OnGrid>,
     /// The nominal innovation blocks, for [`super::noise`].
     blocks: [BlockStat; 2],
     /// Pⱼ(k|k−1) − Pⱼ(k|k) over the velocity block.
@@ -394,6 +397,7 @@ fn aged_for_turn(obs: &Observation, omega_rad_s: f64, lag_s: f64) -> Option<Obse
     let turned = |o: &Observed| Observed {
         value: r * o.value,
         cov: r * o.cov * r.transpose(),
+        grid: o.grid.map(|g| g.turned(&r)),
     };
     match obs {
         Observation::Position(_) => None,
@@ -481,6 +485,7 @@ fn guarded_mode<const K: usize>(
                 run: g.run,
                 nis: g.nis_horizontal,
                 log_likelihood: g.log_likelihood,
+                on_grid: g.on_grid,
                 blocks: g.blocks,
                 correction: pred.covariance_block3(g.adapt, VEL)
                     - kalman::block::<3, 3, K, K>(&p, VEL, VEL),
@@ -536,6 +541,9 @@ pub struct Imm {
     divergence_events: [u64; N_MODES],
     /// Each mode's NIS at the last step (nominal innovation; NaN when its update failed).
     nis: [f64; N_MODES],
+    /// The most probable mode's term of the windowed NIS at the last step
+    /// ([`Imm::published_nis`]).
+    published_nis: f64,
     /// The CV model's innovation blocks at the last step, for [`super::noise`].
     cv_blocks: [BlockStat; 2],
     /// The modes of the current model set ([`Imm::set_active`]): the enabled ones unless a
@@ -558,6 +566,7 @@ impl Imm {
             velocity_correction_cov: Matrix3::zeros(),
             divergence_events: [0; N_MODES],
             nis: [f64::NAN; N_MODES],
+            published_nis: f64::NAN,
             cv_blocks: [BlockStat::default(); 2],
             active: params.enabled,
             velocity_lag_s: params.velocity_lag_s,
@@ -747,6 +756,13 @@ impl Imm {
         self.nis.get(mode.index()).copied().unwrap_or(f64::NAN)
     }
 
+    /// The most probable mode's term of the track's windowed NIS at the last step: its
+    /// horizontal NIS ([`Imm::nis`]), or for a velocity report on a grid its quantile NIS
+    /// ([`super::quantised`]). NaN before a step.
+    pub fn published_nis(&self) -> f64 {
+        self.published_nis
+    }
+
     /// Divergence events per mode over the estimator's life.
     pub fn divergence_events(&self) -> &[u64; N_MODES] {
         &self.divergence_events
@@ -863,6 +879,7 @@ impl Imm {
         let mut runs = [0; N_MODES];
         let mut corrections = [Matrix3::zeros(); N_MODES];
         let mut nis = [f64::NAN; N_MODES];
+        let mut grids: [Option<OnGrid>; N_MODES] = [None; N_MODES];
         let mut cv_blocks = [BlockStat::default(); 2];
         let mut first_error = None;
         let mut any_ok = false;
@@ -892,6 +909,7 @@ impl Imm {
                     any_ok = true;
                     runs[j] = o.run;
                     nis[j] = o.nis;
+                    grids[j] = o.on_grid;
                     if j == ImmMode::Cv.index() {
                         cv_blocks = o.blocks;
                     }
@@ -919,6 +937,12 @@ impl Imm {
         self.mu = self.normalised(&mu);
         self.divergence_runs = runs;
         self.nis = nis;
+        // Only the published mode's quantiles are taken (two inverse error functions).
+        let best = self.most_probable().index();
+        self.published_nis = match grids.get(best).copied().flatten() {
+            Some(g) => g.nis(),
+            None => nis.get(best).copied().unwrap_or(f64::NAN),
+        };
         self.velocity_correction_cov = corrections
             .iter()
             .zip(self.mu)
@@ -1472,8 +1496,10 @@ impl Tracker for ImmTracker {
                 Ok(())
             }
             Start::Running => {
-                let up = local_up(&kalman::rows::<3, _>(&self.imm.combined_state(), POS));
-                let m = &self.noise.prepare(m, &up);
+                let combined = self.imm.combined_state();
+                let up = local_up(&kalman::rows::<3, _>(&combined, POS));
+                let vel = kalman::rows::<3, _>(&combined, VEL);
+                let m = &self.noise.prepare(m, &up, &vel, &self.params.noise);
                 let Some(obs) = Observation::of(m.position.as_ref(), m.velocity.as_ref()) else {
                     return Ok(());
                 };
@@ -1519,7 +1545,7 @@ impl Tracker for ImmTracker {
                 }
                 self.init.advance(m.t_s);
                 self.nis.push(
-                    self.imm.nis(self.imm.most_probable()),
+                    self.imm.published_nis(),
                     super::nis::horizontal_dof(m.position.as_ref(), m.velocity.as_ref()),
                 );
                 Ok(())
@@ -1580,6 +1606,7 @@ mod tests {
             let report = Observed {
                 value: then.fixed_rows::<3>(3).into_owned(),
                 cov,
+                grid: None,
             };
             let Some(Observation::Velocity(turned)) =
                 aged_for_turn(&Observation::Velocity(report), ct.omega_rad_s, lag_s)
@@ -1596,6 +1623,7 @@ mod tests {
             let position = Observed {
                 value: Vector3::new(1.0, 2.0, 3.0),
                 cov: Matrix3::identity(),
+                grid: None,
             };
             let both = aged_for_turn(&Observation::Both(position, report), ct.omega_rad_s, lag_s);
             assert_eq!(both, Some(Observation::Both(position, turned)));
@@ -1661,10 +1689,12 @@ mod tests {
             let position = Observed {
                 value: Vector3::from_fn(|_, _| rng.gen_range(-3e4..3e4)),
                 cov: Matrix3::from_diagonal(&Vector3::new(25.0, 25.0, 100.0)),
+                grid: None,
             };
             let mut velocity = Observed {
                 value: Vector3::from_fn(|_, _| rng.gen_range(-off..off)),
                 cov: Matrix3::from_diagonal(&Vector3::new(0.3, 0.3, 1.0)),
+                grid: None,
             };
             if case % 3 == 0 {
                 velocity.cov[(2, 2)] = UNMEASURED_VARIANCE;
@@ -1757,6 +1787,7 @@ mod tests {
         Observed {
             value,
             cov: Matrix3::identity() * sigma * sigma,
+            grid: None,
         }
     }
 
@@ -1977,6 +2008,7 @@ mod tests {
         let v_obs = Observed {
             value: Vector3::new(0.0, 0.0, 5.0),
             cov: Matrix3::from_diagonal(&Vector3::new(1.0, 1.0, 1.0)),
+            grid: None,
         };
         imm.step(dt, &Observation::Velocity(v_obs)).unwrap();
         let pi = imm.transition(dt);
@@ -2082,11 +2114,13 @@ mod tests {
                 Observation::Position(Observed {
                     value: pos + Vector3::new(60.0 * k as f64, 8.0 * (k as f64).sin(), 0.0),
                     cov: Matrix3::identity() * 100.0,
+                    grid: None,
                 })
             } else {
                 Observation::Velocity(Observed {
                     value: vel + Vector3::new(0.4 * (k as f64).cos(), 0.5, 0.0),
                     cov: Matrix3::identity() * 0.3,
+                    grid: None,
                 })
             };
             imm.step(0.5, &obs).unwrap();

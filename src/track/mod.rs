@@ -20,6 +20,7 @@ pub mod models;
 pub mod nis;
 pub mod noise;
 pub mod outlier;
+pub mod quantised;
 pub mod shared;
 pub mod singer;
 pub mod vsimm;
@@ -120,6 +121,13 @@ pub struct Observed {
     /// Its covariance (m^2 or m^2/s^2). A component that was not measured carries a huge
     /// variance ([`UNMEASURED_VARIANCE`]) rather than a NaN.
     pub cov: Matrix3<f64>,
+    /// The grid the horizontal components were rounded to before they were sent (a ground
+    /// velocity's 1-kt steps along the aircraft's local east and north), or `None` when the
+    /// value is not on a grid that matters. `cov` counts the rounding as noise of variance
+    /// step²/12 as well; the filters that read the grid update on the bin itself and the
+    /// windowed NIS takes the bin's probability ([`quantised`]), since a rounded value that
+    /// repeats is no Gaussian draw.
+    pub grid: Option<quantised::Grid>,
 }
 
 /// Variance given to a component a report did not carry (e.g. vertical rate missing):

@@ -185,6 +185,7 @@ mod tests {
         let mut o = Observed {
             value: Vector3::zeros(),
             cov: Matrix3::identity(),
+            grid: None,
         };
         assert_eq!(horizontal_dof(Some(&o), None), 2);
         assert_eq!(horizontal_dof(Some(&o), Some(&o)), 4);

@@ -649,6 +649,7 @@ pub(crate) mod tests {
         Observed {
             value,
             cov: Matrix3::from_diagonal(&sigma.component_mul(sigma)),
+            grid: None,
         }
     }
 

@@ -14,10 +14,10 @@
 //!   steps, so half of what it sums stays near zero. Before the learner winsorised its
 //!   samples (`NoiseParams::outlier_ratio`), a few outlying reports held the hybrid's
 //!   learned noise up.
-//! - The windowed NIS is inside its band on 47 % of the hybrid's steady updates on AFR34ZG
+//! - The windowed NIS is inside its band on 48 % of the hybrid's steady updates on AFR34ZG
 //!   since a velocity report's term is its bin's randomised quantile residual
 //!   (`track::quantised`; 26 % with the Gaussian NIS of the rounded value, 17 % before the
-//!   steady-flight process noise), 40 % for the IMM (36 %), 20 % for the hybrid's LAX
+//!   steady-flight process noise), 39 % for the IMM (36 %), 19 % for the hybrid's LAX
 //!   NACp 10 aircraft, where the same statistic is inside it on 93-94 % of the updates on
 //!   the simulator's white noise (`tests/tracker_bench.rs`): the statistic is calibrated,
 //!   these innovations are not Gaussian white noise. What is left on AFR34ZG is the

@@ -180,9 +180,6 @@ pub struct HybridConfig {
     pub variable_structure: bool,
     /// Learn each aircraft's measurement noise from its innovations (`track::noise`).
     pub learn_noise: bool,
-    /// Learn each aircraft's position timing noise (`track::noise::TimingNoise`) and add it
-    /// along the track, for `hybrid` and `imm`.
-    pub learn_position_timing: bool,
     /// Learn how much older each aircraft's velocity reports are than its positions
     /// (`track::lag`), for the IMM's CT modes: the hybrid's and the plain `imm`'s.
     pub learn_velocity_lag: bool,
@@ -579,7 +576,6 @@ impl TrackerConfig {
         let key = "tracker.hybrid.noise_scale_limits";
         Ok(NoiseParams {
             enabled: h.learn_noise,
-            learn_timing: h.learn_position_timing,
             min_scale: check(key, lo, 0.0, true, 1.0)?,
             max_scale: check(key, hi, 1.0, false, 1.0e4)?,
             outlier_ratio: check(

@@ -126,7 +126,8 @@ pub struct TrackState {
     /// Windowed normalised innovation squared: the sum of the last updates' NIS over their
     /// measured horizontal components, east and north of position and velocity (null when
     /// the tracker keeps none). χ²(`nis_dof`) for a consistent filter (`track::nis`; the
-    /// quantised barometric altitude and rate are left out).
+    /// quantised barometric altitude and rate are left out; a ground velocity's 1-kt
+    /// rounding is read through its bin, `track::quantised`).
     pub nis: Option<f64>,
     /// Degrees of freedom of `nis`: the measured horizontal components in its window.
     pub nis_dof: Option<u32>,

@@ -30,7 +30,7 @@
 //! position valid at a random time about that, τ ~ N(0, `position_validity_jitter_s`²) per
 //! report, drawn on its own stream (a transponder whose latency varies, or a receiver that
 //! stamps frames by the block of samples they came in: AFR34ZG's positions read as 40 ms
-//! of such noise along the track, `track::noise::TimingNoise`). With
+//! of such noise along the track, `docs/evaluation.md`, "Timing noise along the track"). With
 //! every key at its default the random streams are the ones the simulator
 //! always drew, so existing scenarios give byte-identical files.
 //!

@@ -242,29 +242,6 @@ fn measured(r_ii: f64) -> bool {
     r_ii < 0.5 * UNMEASURED_VARIANCE
 }
 
-/// The east and north of a block's innovation and of H P⁻ Hᵀ = S − R over them (entries
-/// ee, en, nn), when both are measured.
-#[allow(clippy::type_complexity)]
-fn horizontal_pair<const M: usize>(
-    inn: &Innovation<M>,
-    r: &SMatrix<f64, M, M>,
-    start: usize,
-) -> Option<([f64; 2], [f64; 3])> {
-    let (e, n) = (start, start + 1);
-    let entry = |i: usize, j: usize| -> Option<f64> { Some(inn.s.get((i, j))? - r.get((i, j))?) };
-    if !(measured(*r.get((e, e))?) && measured(*r.get((n, n))?)) {
-        return None;
-    }
-    Some((
-        [*inn.residual.get(e)?, *inn.residual.get(n)?],
-        [
-            entry(e, e)?,
-            0.5 * (entry(e, n)? + entry(n, e)?),
-            entry(n, n)?,
-        ],
-    ))
-}
-
 /// Paper 000's criterion (eq. 24) and Adapt (eq. 29) for one 3-vector block starting at
 /// `start` of an M-vector innovation; `state_offset` is the state index of the block. In the
 /// same pass, εᵀε, Tr(S) and Tr(R) over the block's measured horizontal components (its
@@ -283,15 +260,7 @@ fn block_check<const N: usize, const M: usize>(
     let mut any = false;
     for i in 0..3 {
         if i == 2 {
-            horizontal = BlockStat {
-                e2,
-                tr_s,
-                tr_r,
-                ..BlockStat::default()
-            };
-            if let Some(h) = horizontal_pair(inn, r, start) {
-                (horizontal.e_h, horizontal.hph_h) = h;
-            }
+            horizontal = BlockStat { e2, tr_s, tr_r };
         }
         let (m, s) = (start + i, state_offset + i);
         let (Some(&e), Some(&s_mm), Some(&r_mm)) =

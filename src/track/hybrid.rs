@@ -252,7 +252,8 @@ fn to_local_axes(pos_m: &Vector3<f64>, v: &Observed) -> Observed {
     Observed {
         value: rt * v.value,
         cov: rt * v.cov * r,
-        grid: v.grid.map(|g| g.turned(&rt)),
+        // The gate reads values and covariances, not bins.
+        grid: None,
     }
 }
 
@@ -596,18 +597,6 @@ impl HybridTracker {
         }
     }
 
-    /// The filter's current position and velocity in the track's frame, m and m/s (the
-    /// IMM's combined state formed once).
-    fn position_velocity(&self) -> (Vector3<f64>, Vector3<f64>) {
-        match &self.branch {
-            Branch::Cv { x, .. } => (kalman::rows::<3, _>(x, 0), kalman::rows::<3, _>(x, 3)),
-            Branch::Imm { .. } => {
-                let x = self.imm.combined_state();
-                (kalman::rows::<3, _>(&x, 0), kalman::rows::<3, _>(&x, 3))
-            }
-        }
-    }
-
     /// The track predicted to each `(tag, t_s)` of `steps` by the current label's model
     /// ([`Tracker::predict`]): `each(tag, t_s, x, P)`, position and velocity, for the times
     /// at or after the track's (the others are skipped); the IMM's combined estimate is
@@ -864,9 +853,8 @@ impl Tracker for HybridTracker {
             }
             Start::Running => {
                 // The report with the learned noise: the filter and the gate weigh it so.
-                let (pos, vel) = self.position_velocity();
-                let up = local_up(&pos);
-                let m = &self.noise.prepare(m, &up, &vel, &self.params.noise);
+                let up = local_up(&self.position_m());
+                let m = &self.noise.prepare(m, &up);
                 let Some(obs) = Observation::of(m.position.as_ref(), m.velocity.as_ref()) else {
                     return Ok(());
                 };

@@ -397,7 +397,7 @@ fn aged_for_turn(obs: &Observation, omega_rad_s: f64, lag_s: f64) -> Option<Obse
     let turned = |o: &Observed| Observed {
         value: r * o.value,
         cov: r * o.cov * r.transpose(),
-        grid: o.grid.map(|g| g.turned(&r)),
+        grid: o.grid.map(|g| g.turned_about_z(angle)),
     };
     match obs {
         Observation::Position(_) => None,
@@ -879,7 +879,9 @@ impl Imm {
         let mut runs = [0; N_MODES];
         let mut corrections = [Matrix3::zeros(); N_MODES];
         let mut nis = [f64::NAN; N_MODES];
-        let mut grids: [Option<OnGrid>; N_MODES] = [None; N_MODES];
+        // The report on a grid of the mode with the largest posterior weight so far: the one
+        // published (kept as the loop goes, not one per mode).
+        let mut best_grid: Option<(usize, f64, OnGrid)> = None;
         let mut cv_blocks = [BlockStat::default(); 2];
         let mut first_error = None;
         let mut any_ok = false;
@@ -909,13 +911,17 @@ impl Imm {
                     any_ok = true;
                     runs[j] = o.run;
                     nis[j] = o.nis;
-                    grids[j] = o.on_grid;
                     if j == ImmMode::Cv.index() {
                         cv_blocks = o.blocks;
                     }
                     corrections[j] = o.correction;
                     if o.log_likelihood.is_finite() {
                         log_post[j] = c_bar[j].ln() + o.log_likelihood;
+                        if let Some(g) = o.on_grid {
+                            if best_grid.is_none_or(|(_, lp, _)| log_post[j] > lp) {
+                                best_grid = Some((j, log_post[j], g));
+                            }
+                        }
                     }
                 }
                 Err(e) => {
@@ -938,10 +944,13 @@ impl Imm {
         self.divergence_runs = runs;
         self.nis = nis;
         // Only the published mode's quantiles are taken (two inverse error functions).
+        // The most probable mode is the one of the largest posterior weight (normalising keeps
+        // the order), unless no likelihood was finite.
         let best = self.most_probable().index();
-        self.published_nis = match grids.get(best).copied().flatten() {
-            Some(g) => g.nis(),
-            None => nis.get(best).copied().unwrap_or(f64::NAN),
+        let gaussian = nis.get(best).copied().unwrap_or(f64::NAN);
+        self.published_nis = match best_grid {
+            Some((j, _, g)) if j == best => g.nis(),
+            _ => gaussian,
         };
         self.velocity_correction_cov = corrections
             .iter()
@@ -1496,10 +1505,8 @@ impl Tracker for ImmTracker {
                 Ok(())
             }
             Start::Running => {
-                let combined = self.imm.combined_state();
-                let up = local_up(&kalman::rows::<3, _>(&combined, POS));
-                let vel = kalman::rows::<3, _>(&combined, VEL);
-                let m = &self.noise.prepare(m, &up, &vel, &self.params.noise);
+                let up = local_up(&kalman::rows::<3, _>(&self.imm.combined_state(), POS));
+                let m = &self.noise.prepare(m, &up);
                 let Some(obs) = Observation::of(m.position.as_ref(), m.velocity.as_ref()) else {
                     return Ok(());
                 };

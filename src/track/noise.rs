@@ -119,13 +119,6 @@ pub struct NoiseParams {
     /// e⁻⁵ = 0.7 %, and the winsorised mean is low by that much, which λ's own scatter
     /// (the shrinkage of [`NoiseScale::effective`]) covers.
     pub outlier_ratio: f64,
-    /// Learn the position reports' timing noise ([`TimingNoise`]) and add it along the
-    /// track. Default false (`tracker.hybrid.learn_position_timing`): it learns the noise
-    /// (40 ms on AFR34ZG and on `airliner-timing`, whose truth is 40 ms), but weighing the
-    /// positions less along the track leaves the track to the integral of velocity reports
-    /// whose rounding error is held for seconds, and the hybrid grows surer than it is
-    /// (`docs/evaluation.md`, "Timing noise").
-    pub learn_timing: bool,
 }
 
 impl Default for NoiseParams {
@@ -138,7 +131,6 @@ impl Default for NoiseParams {
             min_scale: 1.0 / 400.0,
             max_scale: 16.0,
             outlier_ratio: 5.0,
-            learn_timing: false,
         }
     }
 }
@@ -151,15 +143,8 @@ pub struct BlockStat {
     pub e2: f64,
     /// Tr(S) of the nominal innovation covariance.
     pub tr_s: f64,
-    /// Tr(R) as used in the update (λ R₀, plus the timing term of a position,
-    /// [`NoiseLearner::prepare`]).
+    /// Tr(R) as used in the update (λ R₀).
     pub tr_r: f64,
-    /// The east and north of the innovation, when both were measured (else zeros): what
-    /// the position's timing noise is learned from, along and across the track
-    /// ([`TimingNoise`]).
-    pub e_h: [f64; 2],
-    /// H P⁻ Hᵀ over east and north (east-east, east-north, north-north), with `e_h`.
-    pub hph_h: [f64; 3],
 }
 
 impl BlockStat {
@@ -296,83 +281,6 @@ impl NoiseScale {
     }
 }
 
-/// Slowest ground speed at which the timing noise is learned or applied, m/s: below it the
-/// track's direction is not well defined by its velocity, and what a timing error moves a
-/// position by (σ_τ |v|) is lost in the white noise.
-pub const MIN_TIMING_SPEED_MPS: f64 = 30.0;
-
-/// Largest timing noise learned, s² (σ_τ of 1 s): past that a report is not "a little off
-/// in time" but out of it, which `track::outlier` sets aside.
-pub const MAX_TIMING_VAR_S2: f64 = 1.0;
-
-/// The position reports' timing noise, learned per aircraft (module doc, "Timing").
-///
-/// A position report is stamped with the time the receiver heard it, and is valid at a time
-/// the transponder chose: the two differ by the transponder's latency and by the receiver's
-/// clock (a software receiver stamps frames by the block of samples they came in). An
-/// error τ in the time moves the report by −v τ, along the track: for white τ of variance
-/// σ_τ², the report's covariance gains σ_τ² v vᵀ (the time-registration error of a sensor
-/// taken as measurement noise; Bar-Shalom, Willett & Tian 2011, *Tracking and Data Fusion*,
-/// §10.2). Covariance matching on the innovation along and across the track separates it:
-/// E[ε_a²] − E[ε_c²] = (H P⁻ Hᵀ)_aa − (H P⁻ Hᵀ)_cc + σ_τ² |v|² for a horizontal noise the
-/// same in every direction (what NACp declares, and λ scales), so each position report
-/// at speed gives a sample ((ε_a² − hph_a) − (ε_c² − hph_c)) / |v|², each square winsorised
-/// as λ's are. The prior is no timing noise, worth [`NoiseParams::prior_weight`] reports;
-/// the value applied is the mean less twice its standard error, at least 0, and only once
-/// σ_τ² |v|² is at least the noise the same in every direction: a noise without timing (the
-/// simulator's) gives samples about 0, and applies none.
-///
-/// On AFR34ZG at cruise the innovations were 7.1 m (median) along the track and 1.7 m
-/// across it, and their along-track part implied times 38 ms early to 25 ms late (the
-/// quartiles), with a tail to half a second (the stale positions `track::outlier` sets
-/// aside).
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct TimingNoise {
-    /// The mean of the samples with the prior, s².
-    mean_s2: f64,
-    /// Samples seen (capped at the window).
-    n: f64,
-    /// Exponentially weighted mean of (sample − mean)².
-    scatter: f64,
-    /// The newest sample's weight.
-    weight: f64,
-}
-
-impl TimingNoise {
-    /// The learned mean, s².
-    pub fn var_s2(&self) -> f64 {
-        self.mean_s2
-    }
-
-    /// The variance applied, s²: the mean less twice its standard error, at least 0.
-    pub fn effective_s2(&self) -> f64 {
-        let se = (self.scatter * self.weight / (2.0 - self.weight).max(1.0)).sqrt();
-        (self.mean_s2 - 2.0 * se).max(0.0)
-    }
-
-    /// Adds one sample, s², winsorised at `MAX_TIMING_VAR_S2` either way.
-    fn push(&mut self, sample: f64, params: &NoiseParams) {
-        if !sample.is_finite() {
-            return;
-        }
-        let sample = sample.clamp(-MAX_TIMING_VAR_S2, MAX_TIMING_VAR_S2);
-        self.n = (self.n + 1.0).min(params.window);
-        let weight = 1.0 / (self.n + params.prior_weight.max(0.0));
-        let d = sample - self.mean_s2;
-        self.scatter += weight * (d * d - self.scatter);
-        self.weight = weight;
-        self.mean_s2 = (self.mean_s2 + weight * d).clamp(0.0, MAX_TIMING_VAR_S2);
-    }
-}
-
-/// What [`NoiseLearner::prepare`] added to the last position report for its timing: the
-/// horizontal velocity it was taken along (in the track's frame) and the trace it added.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-struct TimingApplied {
-    vel_h: Vector3<f64>,
-    trace_m2: f64,
-}
-
 /// The learned scales of an aircraft's position and velocity reports.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct NoiseLearner {
@@ -392,10 +300,6 @@ pub struct NoiseLearner {
     pub white_position: NoiseScale,
     /// The last position report used for it: (time s, value m).
     last_position: Option<(f64, Vector3<f64>)>,
-    /// The position reports' timing noise.
-    pub timing: TimingNoise,
-    /// What the last prepared position carried for it.
-    timing_applied: TimingApplied,
 }
 
 /// Position reports further apart than this are not differenced, s.
@@ -404,19 +308,8 @@ const POSITION_STEP_MAX_S: f64 = 2.0;
 impl NoiseLearner {
     /// Learns from one update's position and velocity blocks, the velocity's declared R₀ a
     /// weaker prior when it declares nothing ([`NoiseParams::undeclared_prior_weight`]).
-    ///
-    /// The position's λ is learned from what is left of its innovation once the timing
-    /// term the report carried is taken off (its expected share of εᵀε, S and R: nothing,
-    /// to the bit, when it carried none), and the timing noise from the same innovation
-    /// along and across the track ([`TimingNoise`]).
     pub fn learn(&mut self, position: &BlockStat, velocity: &BlockStat, params: &NoiseParams) {
-        match self.across_track(position, params) {
-            Some(across) => self.position.learn(&across, params),
-            None => self.position.learn(position, params),
-        }
-        if params.enabled && params.learn_timing && position.measured() {
-            self.learn_timing(position, params);
-        }
+        self.position.learn(position, params);
         let velocity_prior = if self.velocity_declared {
             params.prior_weight
         } else {
@@ -424,70 +317,6 @@ impl NoiseLearner {
         };
         self.velocity
             .learn_with_prior(velocity, params, velocity_prior);
-    }
-
-    /// The position block's component across the track (its one degree of freedom that no
-    /// timing error reaches), when the report carried a timing term: λ is then learned from
-    /// it alone. Without one (no timing noise learned yet, or none to learn: the same noise
-    /// in every direction), λ is learned from both components as before, and every number
-    /// is what it was without the timing learner.
-    fn across_track(&self, position: &BlockStat, params: &NoiseParams) -> Option<BlockStat> {
-        if !(params.enabled && params.learn_timing && position.measured())
-            || self.timing_applied.trace_m2 <= 0.0
-        {
-            return None;
-        }
-        let v = self.timing_applied.vel_h;
-        let speed2 = v.x * v.x + v.y * v.y;
-        if speed2 < MIN_TIMING_SPEED_MPS * MIN_TIMING_SPEED_MPS {
-            return None;
-        }
-        let speed = speed2.sqrt();
-        let (ua, un) = (v.x / speed, v.y / speed);
-        let [ee, en] = position.e_h;
-        let [pee, pen, pnn] = position.hph_h;
-        let e_c = -un * ee + ua * en;
-        let hph_c = un * un * pee - 2.0 * ua * un * pen + ua * ua * pnn;
-        let r_c = 0.5 * (position.tr_r - self.timing_applied.trace_m2);
-        Some(BlockStat {
-            e2: e_c * e_c,
-            tr_s: hph_c + r_c,
-            tr_r: r_c,
-            ..BlockStat::default()
-        })
-    }
-
-    /// One sample of the timing noise from a position update's innovation, along and across
-    /// the velocity the report was prepared with ([`TimingNoise`]).
-    fn learn_timing(&mut self, position: &BlockStat, params: &NoiseParams) {
-        let v = self.timing_applied.vel_h;
-        let speed2 = v.x * v.x + v.y * v.y;
-        if speed2 < MIN_TIMING_SPEED_MPS * MIN_TIMING_SPEED_MPS {
-            return;
-        }
-        let speed = speed2.sqrt();
-        let (ua, un) = (v.x / speed, v.y / speed);
-        let [ee, en] = position.e_h;
-        let [pee, pen, pnn] = position.hph_h;
-        // Along (u) and across (u rotated a quarter turn) the track.
-        let e_a = ua * ee + un * en;
-        let e_c = -un * ee + ua * en;
-        let hph_a = ua * ua * pee + 2.0 * ua * un * pen + un * un * pnn;
-        let hph_c = un * un * pee - 2.0 * ua * un * pen + ua * ua * pnn;
-        let t = self.timing_applied.trace_m2;
-        // R along and across: the noise the same in every direction, and the timing term
-        // along.
-        let r_c = 0.5 * (position.tr_r - t);
-        let r_a = r_c + t;
-        // While the state is less certain than the report, the innovation mostly measures
-        // the state (as for λ).
-        if hph_a + hph_c > r_a + r_c || r_c <= 0.0 {
-            return;
-        }
-        let ratio = params.outlier_ratio;
-        let a = (e_a * e_a).min(ratio * (hph_a + r_a)) - hph_a;
-        let c = (e_c * e_c).min(ratio * (hph_c + r_c)) - hph_c;
-        self.timing.push((a - c) / speed2, params);
     }
 
     /// Learns the white part of the position noise from the step between successive
@@ -512,9 +341,7 @@ impl NoiseLearner {
             let dt = t_s - t0;
             if dt > 0.0 && dt <= POSITION_STEP_MAX_S && self.declared_pos_var_m2 > 0.0 {
                 let d = pos_m - p0 - vel_mps * dt;
-                // Less the two reports' timing noise along the track: 2 σ_τ² |v|².
-                let timing = 2.0 * self.timing_var_m2(vel_mps, up, params);
-                let d_h2 = d.norm_squared() - d.dot(up).powi(2) - timing;
+                let d_h2 = d.norm_squared() - d.dot(up).powi(2);
                 let sample = d_h2 / (4.0 * self.declared_pos_var_m2);
                 self.white_position
                     .learn_ratio(sample, params, params.prior_weight);
@@ -536,63 +363,16 @@ impl NoiseLearner {
         }
     }
 
-    /// The timing term's variance along the track at velocity `vel_mps`, σ_τ² |v_h|², m²
-    /// (0 below [`MIN_TIMING_SPEED_MPS`] or when not learned).
-    fn timing_var_m2(
-        &self,
-        vel_mps: &Vector3<f64>,
-        up: &Vector3<f64>,
-        params: &NoiseParams,
-    ) -> f64 {
-        if !(params.enabled && params.learn_timing) {
-            return 0.0;
-        }
-        let v_h = vel_mps - up * vel_mps.dot(up);
-        let speed2 = v_h.norm_squared();
-        if speed2 < MIN_TIMING_SPEED_MPS * MIN_TIMING_SPEED_MPS {
-            return 0.0;
-        }
-        self.timing.effective_s2() * speed2
-    }
-
     /// The report a filter uses: `m` with each block's horizontal covariance scaled by what
-    /// was learned ([`NoiseScale::apply`]; `up` the local vertical at the track), and a
-    /// position's timing noise added along the track's velocity `vel_mps` (σ_τ² v_h v_hᵀ,
-    /// v_h its horizontal part: [`TimingNoise`]); its declared position covariance noted
-    /// first for [`NoiseLearner::position_bias_var`].
-    pub fn prepare(
-        &mut self,
-        m: &Measurement,
-        up: &Vector3<f64>,
-        vel_mps: &Vector3<f64>,
-        params: &NoiseParams,
-    ) -> Measurement {
-        let position = m.position.as_ref().map(|o| {
+    /// was learned ([`NoiseScale::apply`]; `up` the local vertical at the track), its declared
+    /// position covariance noted first for [`NoiseLearner::position_bias_var`].
+    pub fn prepare(&mut self, m: &Measurement, up: &Vector3<f64>) -> Measurement {
+        if let Some(o) = &m.position {
             self.note_position(o);
-            let mut scaled = self.position.apply(o, up);
-            let v_h = vel_mps - up * vel_mps.dot(up);
-            // Applied once it is at least the noise the same in every direction (per axis):
-            // a smaller one is within what λ covers, and a chance excursion of the mean on
-            // a noise without timing (the simulator's: about 2 standard errors, 2 m² at
-            // 230 m/s and 2 m of white noise) stays well under it.
-            let white_m2 = 0.5 * (scaled.cov.trace() - up.dot(&(scaled.cov * up)));
-            let var_s2 = if self.timing_var_m2(vel_mps, up, params) >= white_m2 {
-                self.timing.effective_s2()
-            } else {
-                0.0
-            };
-            if var_s2 > 0.0 {
-                scaled.cov += v_h * v_h.transpose() * var_s2;
-            }
-            self.timing_applied = TimingApplied {
-                vel_h: v_h,
-                trace_m2: var_s2 * v_h.norm_squared(),
-            };
-            scaled
-        });
+        }
         Measurement {
             t_s: m.t_s,
-            position,
+            position: m.position.as_ref().map(|o| self.position.apply(o, up)),
             velocity: m.velocity.as_ref().map(|o| self.velocity.apply(o, up)),
         }
     }
@@ -688,7 +468,6 @@ mod tests {
                 e2,
                 tr_s: 3.0 * s,
                 tr_r: 3.0 * r,
-                ..BlockStat::default()
             };
             // The update (three independent looks at one scalar, for brevity).
             let mean_z = (z[0] + z[1] + z[2]) / 3.0;
@@ -723,7 +502,6 @@ mod tests {
             e2: 0.02,
             tr_s: 0.03,
             tr_r: 0.02,
-            ..BlockStat::default()
         };
         let (mut on, mut off) = (NoiseLearner::default(), NoiseLearner::default());
         on.velocity_declared = true;
@@ -792,7 +570,6 @@ mod tests {
             e2: 1.0e9,
             tr_s: 2.0,
             tr_r: 1.0,
-            ..BlockStat::default()
         };
         scale.learn(&huge, &params);
         let sample = params.outlier_ratio * 2.0 - 1.0;
@@ -959,82 +736,5 @@ mod tests {
         );
         assert!((scaled - scaled.transpose()).norm() < 1e-9);
         assert!(scaled.cholesky().is_some());
-    }
-
-    /// Position reports σ = 2 m in every direction plus a timing noise of σ_τ along the
-    /// track at 230 m/s heading 30°, through `prepare` and `learn` as a filter feeds them
-    /// (a fixed H P⁻ Hᵀ of 0.5 m² per axis, the innovation drawn from the truth it implies):
-    /// the learner's (λ, σ_τ²) after `steps` reports, and whether a timing term was ever
-    /// applied.
-    fn learned_timing(tau_s: f64, steps: usize, learn_timing: bool) -> (f64, f64, bool) {
-        use rand::{rngs::StdRng, SeedableRng};
-        use rand_distr::{Distribution, StandardNormal};
-        let mut rng = StdRng::seed_from_u64(21);
-        let params = NoiseParams {
-            learn_timing,
-            ..NoiseParams::default()
-        };
-        let sigma0_m2 = 150.0; // NACp 9
-        let declared = Observed {
-            value: Vector3::zeros(),
-            cov: Matrix3::from_diagonal(&Vector3::new(sigma0_m2, sigma0_m2, 100.0)),
-            grid: None,
-        };
-        let heading = 30f64.to_radians();
-        let vel = 230.0 * Vector3::new(heading.sin(), heading.cos(), 0.0);
-        let u = vel / 230.0;
-        let hph = 0.5;
-        let mut learner = NoiseLearner::default();
-        let mut applied = false;
-        for k in 0..steps {
-            let m = Measurement {
-                t_s: 0.5 * k as f64,
-                position: Some(declared),
-                velocity: None,
-            };
-            let prepared = learner.prepare(&m, &Vector3::z(), &vel, &params);
-            let r = prepared.position.map(|o| o.cov).unwrap_or_default();
-            applied |= learner.timing_applied.trace_m2 > 0.0;
-            // The innovation from the truth: H P⁻ Hᵀ + 4 m² + σ_τ² v vᵀ.
-            let n = |rng: &mut StdRng| -> f64 { StandardNormal.sample(rng) };
-            let e = Vector3::new(n(&mut rng), n(&mut rng), 0.0) * (hph + 4.0f64).sqrt()
-                + u * (230.0 * tau_s * n(&mut rng));
-            let stat = BlockStat {
-                e2: e.x * e.x + e.y * e.y,
-                tr_s: 2.0 * hph + r[(0, 0)] + r[(1, 1)],
-                tr_r: r[(0, 0)] + r[(1, 1)],
-                e_h: [e.x, e.y],
-                hph_h: [hph, 0.0, hph],
-            };
-            learner.learn(&stat, &BlockStat::default(), &params);
-        }
-        (
-            learner.position.effective() * sigma0_m2,
-            learner.timing.var_s2(),
-            applied,
-        )
-    }
-
-    /// The timing noise is learned along the track (AFR34ZG's 40 ms, 2 m across it): σ_τ²
-    /// within 20 % after 2,000 reports, and the noise the same in every direction from the
-    /// across-track component, within 20 % of its 4 m²; where there is none it is not
-    /// applied, and λ is what it is without the timing learner, to the bit.
-    #[test]
-    fn timing_noise_is_learned_along_the_track() {
-        let (white, tau2, applied) = learned_timing(0.04, 2000, true);
-        assert!(applied);
-        assert!((tau2 / 0.0016 - 1.0).abs() < 0.2, "σ_τ² {tau2}");
-        assert!((white / 4.0 - 1.0).abs() < 0.2, "white {white} m²");
-        // Without the learner the timing noise goes into λ, in every direction: half of
-        // (40 ms × 230 m/s)² on each axis.
-        let (white_off, _, applied_off) = learned_timing(0.04, 2000, false);
-        assert!(!applied_off);
-        assert!(white_off > 40.0, "{white_off}");
-        // No timing noise: nothing applied, and λ the same bits as without the learner.
-        let (white0, tau0, applied0) = learned_timing(0.0, 2000, true);
-        let (white0_off, _, _) = learned_timing(0.0, 2000, false);
-        assert!(!applied0, "σ_τ² {tau0}");
-        assert_eq!(white0.to_bits(), white0_off.to_bits());
-        assert!((white0 / 4.0 - 1.0).abs() < 0.2, "{white0}");
     }
 }

@@ -59,6 +59,11 @@ pub struct Grid {
     /// quaternion, not its matrix: every velocity report carries one, and 32 bytes are a
     /// report's copies' cost where 72 were (`tests/memory_budget.rs`).
     pub axes: UnitQuaternion<f64>,
+    /// A turn about the track frame's vertical applied after `axes`, rad: an IMM's turn
+    /// models take a velocity report turned by their rate times its age
+    /// ([`Grid::turned_about_z`]), and the grid turns with it, kept as an angle until the
+    /// axes are needed (for a narrow claim only).
+    pub turn_rad: f64,
 }
 
 impl Grid {
@@ -70,21 +75,26 @@ impl Grid {
             axes: UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(
                 *rotation,
             )),
+            turn_rad: 0.0,
         }
     }
 
-    /// The grid of a report turned by `r` (a rotation matrix in the track's frame), with it.
-    pub fn turned(&self, r: &Matrix3<f64>) -> Self {
-        let r = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(*r));
+    /// The grid of a report turned by `angle_rad` about the track frame's vertical, with it.
+    pub fn turned_about_z(&self, angle_rad: f64) -> Self {
         Self {
-            step: self.step,
-            axes: r * self.axes,
+            turn_rad: self.turn_rad + angle_rad,
+            ..*self
         }
     }
 
     /// The axes as a matrix (columns: local east, north, up in the track's frame).
     pub fn matrix(&self) -> Matrix3<f64> {
-        self.axes.to_rotation_matrix().into_inner()
+        let axes = self.axes.to_rotation_matrix().into_inner();
+        if self.turn_rad == 0.0 {
+            return axes;
+        }
+        let (sin, cos) = self.turn_rad.sin_cos();
+        Matrix3::new(cos, -sin, 0.0, sin, cos, 0.0, 0.0, 0.0, 1.0) * axes
     }
 }
 
@@ -93,17 +103,18 @@ const SQRT_2: f64 = std::f64::consts::SQRT_2;
 /// 1 / √(2π), the standard normal density's constant.
 const FRAC_1_SQRT_2PI: f64 = 0.398_942_280_401_432_7;
 
-/// A report on a grid with the filter's claim about its horizontal components before they
-/// were rounded: what its term of the windowed NIS is computed from ([`OnGrid::nis`]).
-/// Formed where the update has the innovation; the quantiles are taken only when asked (an
-/// IMM forms one per mode and publishes one).
+/// A report on a grid with the filter's narrow claim about its two horizontal components
+/// before rounding, in the grid's axes: what its term of the windowed NIS is computed from
+/// ([`OnGrid::nis`]). Formed where the update has the innovation (a turn into the grid's
+/// axes, about 70 multiplications); the quantiles are taken only when asked, since an IMM
+/// forms one per mode and publishes one.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct OnGrid {
-    /// The reported east and north values (bin centres).
+    /// The bins' centres (the reported values).
     reported: [f64; 2],
-    /// The claimed mean of the value before rounding, ẑ = z − ε.
+    /// The claimed mean before rounding, ẑ = z − ε.
     mean: [f64; 2],
-    /// The claimed covariance before rounding (east-east, east-north, north-north).
+    /// The claimed covariance before rounding: east-east, east-north, north-north.
     cov: [f64; 3],
     /// The grid's step Δ.
     step: f64,
@@ -113,9 +124,12 @@ impl OnGrid {
     /// From an update's innovation (residual ε = z − ẑ and covariance S over a report's
     /// three components, in the track's frame) of a report `reported` made with covariance
     /// `r`, on `grid`. `r` counts the rounding as Δ²/12 per horizontal axis (as every report
-    /// on a grid does, `Observed::grid`), which comes off S here: the claim is about the
-    /// value before rounding, whose own noise is at least [`MIN_WHITE_VAR_M2PS2`]. `None`
-    /// when the step is not a positive number or a value is not finite.
+    /// on a grid does, `Observed::grid`), which comes off S: the claim is about the value
+    /// before rounding, whose own noise is at least [`MIN_WHITE_VAR_M2PS2`].
+    ///
+    /// `None` when the claim is wide ([`WIDE_CLAIM_STEPS`]: its quantile NIS is then the
+    /// Gaussian NIS the update computed, which is the report's term), when the step is not a
+    /// positive number, or when a value is not finite.
     pub fn of(
         residual: &Vector3<f64>,
         s: &Matrix3<f64>,
@@ -127,20 +141,44 @@ impl OnGrid {
         if !(step > 0.0 && step.is_finite()) {
             return None;
         }
-        // Into the grid's own axes.
-        let a = &grid.matrix();
-        let (residual, reported) = (a.transpose() * residual, a.transpose() * reported);
-        let (s, r) = (a.transpose() * s * a, a.transpose() * r * a);
-        let white = white_var(&r, step);
-        let cov = [
-            s[(0, 0)] - r[(0, 0)] + white,
-            0.5 * (s[(0, 1)] + s[(1, 0)] - r[(0, 1)] - r[(1, 0)]),
-            s[(1, 1)] - r[(1, 1)] + white,
-        ];
+        // Wide: the claim's spread before rounding at least WIDE_CLAIM_STEPS steps on either
+        // horizontal axis, taken on the track frame's axes (a threshold, not a bin: the
+        // grid's axes are turned from them by a few degrees). A NaN is not wide, and is
+        // refused below.
+        let white_frame =
+            (0.5 * (r[(0, 0)] + r[(1, 1)]) - step * step / 12.0).max(MIN_WHITE_VAR_M2PS2);
+        let narrowest = (s[(0, 0)] - r[(0, 0)]).min(s[(1, 1)] - r[(1, 1)]) + white_frame;
+        if narrowest >= (WIDE_CLAIM_STEPS * step).powi(2) {
+            return None;
+        }
+        Self::in_grid_axes(residual, s, r, reported, grid)
+    }
+
+    /// [`OnGrid::of`] for any claim, wide or not.
+    fn in_grid_axes(
+        residual: &Vector3<f64>,
+        s: &Matrix3<f64>,
+        r: &Matrix3<f64>,
+        reported: &Vector3<f64>,
+        grid: &Grid,
+    ) -> Option<Self> {
+        let step = grid.step;
+        // Into the grid's own axes: only its east and north rows (a'ᵢ S aⱼ).
+        let m = grid.matrix();
+        let (a0, a1) = (m.column(0).into_owned(), m.column(1).into_owned());
+        let quad = |x: &Matrix3<f64>, u: &Vector3<f64>, v: &Vector3<f64>| u.dot(&(x * v));
+        let (ree, ren, rnn) = (quad(r, &a0, &a0), quad(r, &a0, &a1), quad(r, &a1, &a1));
+        let white = (0.5 * (ree + rnn) - step * step / 12.0).max(MIN_WHITE_VAR_M2PS2);
+        let (ze, zn) = (a0.dot(reported), a1.dot(reported));
+        let (ee, en) = (a0.dot(residual), a1.dot(residual));
         let g = Self {
-            reported: [reported.x, reported.y],
-            mean: [reported.x - residual.x, reported.y - residual.y],
-            cov,
+            reported: [ze, zn],
+            mean: [ze - ee, zn - en],
+            cov: [
+                quad(s, &a0, &a0) - ree + white,
+                quad(s, &a0, &a1) - ren,
+                quad(s, &a1, &a1) - rnn + white,
+            ],
             step,
         };
         let finite = g
@@ -163,14 +201,15 @@ impl OnGrid {
         if !(ce > 0.0 && cn > 0.0) {
             return [f64::NAN; 2];
         }
-        let east = quantile_residual(me, ce, ze - half, ze + half, u_e);
+        let east = Bin::of(me, ce, ze - half, ze + half);
         // North given east's bin: the Gaussian the first component's truncated moments
         // leave (the update a filter would make with that bin).
+        let (t_mean, t_var) = east.truncated_moments();
         let k = cen / ce;
-        let mean_n = mn + k * (east.mean - me);
-        let var_n = (cn - k * cen + k * k * east.var).max(f64::MIN_POSITIVE);
-        let north = quantile_residual(mean_n, var_n, zn - half, zn + half, u_n);
-        [east.r, north.r]
+        let mean_n = mn + k * (t_mean - me);
+        let var_n = (cn - k * cen + k * k * t_var).max(f64::MIN_POSITIVE);
+        let north = Bin::of(mean_n, var_n, zn - half, zn + half);
+        [east.quantile_residual(u_e), north.quantile_residual(u_n)]
     }
 
     /// The report's term of the windowed NIS: the sum of its squared quantile residuals,
@@ -179,23 +218,32 @@ impl OnGrid {
         let [e, n] = self.residuals();
         e * e + n * n
     }
+}
 
-    /// Bits of every input, mixed: the seed of the report's uniforms.
+/// A claim whose spread before rounding is at least this many grid steps on each horizontal
+/// axis is wide ([`OnGrid::of`]): the bin spans at most half its σ, and the quantile NIS
+/// averages what the Gaussian one does within 5 % (module test
+/// `a_wide_claim_reads_as_the_gaussian_nis`, at 2.4 steps). The quantiles cost about 200 ns
+/// (four error functions, two inverses); a wide claim pays nothing for them: the
+/// simulator's NACv 2 velocities, and a filter that takes NACv literally.
+pub const WIDE_CLAIM_STEPS: f64 = 2.0;
+
+impl OnGrid {
+    /// Bits of every input, mixed: the seed of the report's uniforms (a multiply-rotate
+    /// fold, then one SplitMix64 finish, which spreads any input bit over the whole word).
     fn hash(&self) -> u64 {
-        self.reported
+        let h = self
+            .reported
             .iter()
             .chain(&self.mean)
             .chain(&self.cov)
             .fold(0x9e37_79b9_7f4a_7c15_u64, |h, v| {
-                splitmix64(h ^ v.to_bits())
-            })
+                (h ^ v.to_bits())
+                    .wrapping_mul(0xff51_afd7_ed55_8ccd)
+                    .rotate_left(29)
+            });
+        splitmix64(h)
     }
-}
-
-/// The report's own noise before rounding, per horizontal axis of its grid (`r` in the
-/// grid's axes): R less the rounding's Δ²/12, at least [`MIN_WHITE_VAR_M2PS2`].
-fn white_var(r: &Matrix3<f64>, step: f64) -> f64 {
-    (0.5 * (r[(0, 0)] + r[(1, 1)]) - step * step / 12.0).max(MIN_WHITE_VAR_M2PS2)
 }
 
 /// SplitMix64's finaliser (Steele, Lea & Flood 2014): a 64-bit mix whose outputs pass
@@ -215,15 +263,6 @@ fn uniforms(seed: u64) -> [f64; 2] {
     [unit(a), unit(splitmix64(a))]
 }
 
-/// One component's randomised quantile residual and the moments of the claim truncated to
-/// the bin.
-#[derive(Clone, Copy, Debug, PartialEq)]
-struct Truncated {
-    r: f64,
-    mean: f64,
-    var: f64,
-}
-
 /// Φ(x), the standard normal distribution function, accurate in the lower tail.
 fn phi_lower(x: f64) -> f64 {
     0.5 * erfc(-x / SQRT_2)
@@ -239,79 +278,109 @@ fn density(x: f64) -> f64 {
     FRAC_1_SQRT_2PI * (-0.5 * x * x).exp()
 }
 
-/// The randomised quantile residual of a value claimed N(`mean`, `var`) and reported in the
-/// bin [`a`, `b`], with the uniform `u`; and the claim's moments truncated to the bin
-/// ([`truncated_moments`]).
-///
-/// The probabilities are taken in the tail the bin lies in (1 − Φ above the mean, Φ below
-/// it), where they keep their digits: a bin 10σ out has a probability of 10⁻²³, which
-/// Φ(β) − Φ(α) near 1 would lose entirely. A bin beyond f64's reach (about 38σ) gives the
-/// standardised distance to its nearer edge, which is what the residual tends to there.
-fn quantile_residual(mean: f64, var: f64, a: f64, b: f64, u: f64) -> Truncated {
-    let sd = var.sqrt();
-    let (alpha, beta) = ((a - mean) / sd, (b - mean) / sd);
-    let r = if alpha >= 0.0 {
-        // Upper tail: 1 − u = Q(α) − U (Q(α) − Q(β)).
-        let (qa, qb) = (phi_upper(alpha), phi_upper(beta));
-        let q = qa - u * (qa - qb);
-        if q > 0.0 {
-            SQRT_2 * erfc_inv(2.0 * q)
-        } else {
-            alpha
-        }
-    } else if beta <= 0.0 {
-        // Lower tail: u = Φ(α) + U (Φ(β) − Φ(α)).
-        let (pa, pb) = (phi_lower(alpha), phi_lower(beta));
-        let p = pa + u * (pb - pa);
-        if p > 0.0 {
-            -SQRT_2 * erfc_inv(2.0 * p)
-        } else {
-            beta
-        }
-    } else {
-        // The bin holds the mean: both probabilities are far from 0 and 1.
-        let (pa, pb) = (phi_lower(alpha), phi_lower(beta));
-        -SQRT_2 * erfc_inv(2.0 * (pa + u * (pb - pa)))
-    };
-    let (mean, var) = truncated_moments(mean, var, a, b);
-    Truncated { r, mean, var }
+/// One component's claim N(`mean`, `var`) against its bin [a, b], standardised:
+/// α = (a − mean)/σ, β = (b − mean)/σ, and the bin's probability z, each probability taken in
+/// the tail the bin lies in (1 − Φ above the mean, Φ below it), where it keeps its digits: a
+/// bin 10σ out has a probability of 10⁻²³, which Φ(β) − Φ(α) near 1 would lose entirely.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Bin {
+    mean: f64,
+    var: f64,
+    a: f64,
+    b: f64,
+    alpha: f64,
+    beta: f64,
+    /// The distribution function at α and β, in the bin's tail: (1 − Φ(α), 1 − Φ(β)) when
+    /// α ≥ 0, else (Φ(α), Φ(β)).
+    p_alpha: f64,
+    p_beta: f64,
 }
 
-/// The mean and variance of N(`mean`, `var`) truncated to [`a`, `b`] (Johnson, Kotz &
-/// Balakrishnan 1994, §10.1), the bin's probability taken in its own tail as
-/// [`quantile_residual`] does. Where that probability has lost its digits (a bin more than
-/// about 7σ out) the nearer edge with the bin's own spread, Δ²/12; the mean always inside
-/// the bin, the variance positive and at most the claim's.
-fn truncated_moments(mean: f64, var: f64, a: f64, b: f64) -> (f64, f64) {
-    let sd = var.sqrt();
-    let (alpha, beta) = ((a - mean) / sd, (b - mean) / sd);
-    let z = if alpha >= 0.0 {
-        phi_upper(alpha) - phi_upper(beta)
-    } else {
-        phi_lower(beta) - phi_lower(alpha)
-    };
-    let (da, db) = (density(alpha), density(beta));
-    let bin_var = (b - a) * (b - a) / 12.0;
-    let (t_mean, t_var) = if z > 1e-12 {
-        let ratio = (da - db) / z;
-        (
-            mean + sd * ratio,
-            var * (1.0 + (alpha * da - beta * db) / z - ratio * ratio),
-        )
-    } else {
-        (mean.clamp(a, b), bin_var)
-    };
-    let m = if t_mean.is_finite() {
-        t_mean.clamp(a, b)
-    } else {
-        mean.clamp(a, b)
-    };
-    let v = if t_var.is_finite() && t_var > 0.0 {
-        t_var.min(var).min(3.0 * bin_var)
-    } else {
-        bin_var.min(var)
-    };
-    (m, v)
+impl Bin {
+    fn of(mean: f64, var: f64, a: f64, b: f64) -> Self {
+        let sd = var.sqrt();
+        let (alpha, beta) = ((a - mean) / sd, (b - mean) / sd);
+        let (p_alpha, p_beta) = if alpha >= 0.0 {
+            (phi_upper(alpha), phi_upper(beta))
+        } else {
+            (phi_lower(alpha), phi_lower(beta))
+        };
+        Self {
+            mean,
+            var,
+            a,
+            b,
+            alpha,
+            beta,
+            p_alpha,
+            p_beta,
+        }
+    }
+
+    /// The bin's probability under the claim.
+    fn probability(&self) -> f64 {
+        if self.alpha >= 0.0 {
+            self.p_alpha - self.p_beta
+        } else {
+            self.p_beta - self.p_alpha
+        }
+    }
+
+    /// The randomised quantile residual with the uniform `u`: Φ⁻¹ of a point drawn
+    /// uniformly between the distribution function at the bin's edges. A bin beyond f64's
+    /// reach (about 38σ) gives the standardised distance to its nearer edge, which is what
+    /// the residual tends to there.
+    fn quantile_residual(&self, u: f64) -> f64 {
+        if self.alpha >= 0.0 {
+            // Upper tail: 1 − u = Q(α) − U (Q(α) − Q(β)).
+            let q = self.p_alpha - u * (self.p_alpha - self.p_beta);
+            if q > 0.0 {
+                SQRT_2 * erfc_inv(2.0 * q)
+            } else {
+                self.alpha
+            }
+        } else {
+            // Lower tail (or a bin that holds the mean, whose probabilities are far from 0
+            // and 1): u = Φ(α) + U (Φ(β) − Φ(α)).
+            let p = self.p_alpha + u * (self.p_beta - self.p_alpha);
+            if p > 0.0 {
+                -SQRT_2 * erfc_inv(2.0 * p)
+            } else {
+                self.beta
+            }
+        }
+    }
+
+    /// The mean and variance of the claim truncated to the bin (Johnson, Kotz &
+    /// Balakrishnan 1994, §10.1). Where the bin's probability has lost its digits (a bin
+    /// more than about 7σ out) the nearer edge with the bin's own spread, Δ²/12; the mean
+    /// always inside the bin, the variance positive and at most the claim's.
+    fn truncated_moments(&self) -> (f64, f64) {
+        let (mean, var, a, b) = (self.mean, self.var, self.a, self.b);
+        let z = self.probability();
+        let bin_var = (b - a) * (b - a) / 12.0;
+        let (t_mean, t_var) = if z > 1e-12 {
+            let (da, db) = (density(self.alpha), density(self.beta));
+            let ratio = (da - db) / z;
+            (
+                mean + var.sqrt() * ratio,
+                var * (1.0 + (self.alpha * da - self.beta * db) / z - ratio * ratio),
+            )
+        } else {
+            (mean.clamp(a, b), bin_var)
+        };
+        let m = if t_mean.is_finite() {
+            t_mean.clamp(a, b)
+        } else {
+            mean.clamp(a, b)
+        };
+        let v = if t_var.is_finite() && t_var > 0.0 {
+            t_var.min(var).min(3.0 * bin_var)
+        } else {
+            bin_var.min(var)
+        };
+        (m, v)
+    }
 }
 
 #[cfg(test)]
@@ -344,7 +413,7 @@ mod tests {
             2.0,
         );
         let residual = z - Vector3::new(claim[0], claim[1], 0.0);
-        OnGrid::of(&residual, &s, &r, &z, &grid(step)).unwrap()
+        OnGrid::in_grid_axes(&residual, &s, &r, &z, &grid(step)).unwrap()
     }
 
     /// A grid along the track frame's own axes.
@@ -374,7 +443,7 @@ mod tests {
                 Matrix3::from_diagonal(&Vector3::new(0.0025 + rounding, 0.0025 + rounding, 0.5));
             let claim = Matrix3::new(0.01, 0.002, 0.0, 0.002, 0.012, 0.0, 0.0, 0.0, 0.3);
             let s = claim + r;
-            let turned = OnGrid::of(
+            let turned = OnGrid::in_grid_axes(
                 &(turn * (z - mean)),
                 &(turn * s * turn.transpose()),
                 &(turn * r * turn.transpose()),
@@ -407,19 +476,22 @@ mod tests {
             (0.975, 1.959_963_984_540_054),
             (0.025, -1.959_963_984_540_054),
         ] {
-            let t = quantile_residual(0.0, 1.0, -40.0, 40.0, u);
-            assert!((t.r - want).abs() < 1e-12, "{u}: {}", t.r);
+            let r = Bin::of(0.0, 1.0, -40.0, 40.0).quantile_residual(u);
+            assert!((r - want).abs() < 1e-12, "{u}: {r}");
         }
         // Far tails keep digits: a bin at 10-11 σ gives a residual between 10 and 11.
         for u in [1e-9, 0.3, 0.999] {
-            let up = quantile_residual(0.0, 1.0, 10.0, 11.0, u);
-            assert!((10.0..=11.0).contains(&up.r), "{up:?}");
-            let down = quantile_residual(0.0, 1.0, -11.0, -10.0, u);
-            assert!((-11.0..=-10.0).contains(&down.r), "{down:?}");
+            let up = Bin::of(0.0, 1.0, 10.0, 11.0).quantile_residual(u);
+            assert!((10.0..=11.0).contains(&up), "{up}");
+            let down = Bin::of(0.0, 1.0, -11.0, -10.0).quantile_residual(u);
+            assert!((-11.0..=-10.0).contains(&down), "{down}");
         }
         // Beyond f64's reach: the nearer edge.
-        assert_eq!(quantile_residual(0.0, 1.0, 50.0, 51.0, 0.5).r, 50.0);
-        assert_eq!(quantile_residual(0.0, 1.0, -51.0, -50.0, 0.5).r, -50.0);
+        assert_eq!(Bin::of(0.0, 1.0, 50.0, 51.0).quantile_residual(0.5), 50.0);
+        assert_eq!(
+            Bin::of(0.0, 1.0, -51.0, -50.0).quantile_residual(0.5),
+            -50.0
+        );
         // Truncated moments against a midpoint-rule integral.
         for (mean, var, a, b) in [
             (0.0, 1.0, -0.3, 0.5),
@@ -436,9 +508,9 @@ mod tests {
                 m2 += d * x * x;
             }
             let (m, v) = (m1 / w, m2 / w - (m1 / w) * (m1 / w));
-            let t = quantile_residual(mean, var, a, b, 0.5);
-            assert!((t.mean - m).abs() < 1e-6, "{t:?} vs {m}");
-            assert!((t.var - v).abs() < 1e-6, "{t:?} vs {v}");
+            let (tm, tv) = Bin::of(mean, var, a, b).truncated_moments();
+            assert!((tm - m).abs() < 1e-6, "{tm} vs {m}");
+            assert!((tv - v).abs() < 1e-6, "{tv} vs {v}");
         }
     }
 
@@ -586,6 +658,12 @@ mod tests {
             let o = on_grid(truth, base, [0.1, 0.0, 0.1], 1.4, KT);
             q += o.nis();
             assert_eq!(o.nis().to_bits(), o.nis().to_bits());
+            // Such a claim is wide: the update's Gaussian NIS stands for it.
+            let rq = 1.4 + KT * KT / 12.0;
+            let r = Matrix3::from_diagonal(&Vector3::new(rq, rq, 1.0));
+            let s = r + Matrix3::from_diagonal(&Vector3::new(0.1, 0.1, 1.0));
+            let z = Vector3::new(o.reported[0], o.reported[1], 0.0);
+            assert!(OnGrid::of(&Vector3::zeros(), &s, &r, &z, &grid(KT)).is_none());
             let s = 0.1 + 1.4 + KT * KT / 12.0;
             let (de, dn) = (o.reported[0] - base[0], o.reported[1] - base[1]);
             g += (de * de + dn * dn) / s;

@@ -11,6 +11,7 @@ use crate::track::hybrid::HybridParams;
 use crate::track::imm::{ImmParams, ImmTrackerParams, N_MODES};
 use crate::track::noise::NoiseParams;
 use crate::track::outlier::OutlierParams;
+use crate::track::process_noise::SteadyQParams;
 use serde::Deserialize;
 
 #[derive(Clone, Debug, Deserialize, PartialEq)]
@@ -183,6 +184,10 @@ pub struct HybridConfig {
     /// Learn how much older each aircraft's velocity reports are than its positions
     /// (`track::lag`), for the IMM's CT modes: the hybrid's and the plain `imm`'s.
     pub learn_velocity_lag: bool,
+    /// Scale the hybrid's steady-flight q_h per aircraft by what its velocity reports show
+    /// (`track::process_noise`), down to `steady_q_min_scale` times `steady_q_horizontal`.
+    pub learn_steady_q: bool,
+    pub steady_q_min_scale: f64,
     /// Bounds of the learned factor on the declared covariance.
     pub noise_scale_limits: [f64; 2],
     /// An innovation's εᵀε is winsorised at this many times Tr(S) before the learner
@@ -538,6 +543,17 @@ impl TrackerConfig {
         p.noise = self.noise_params()?;
         p.learn_velocity_lag = h.learn_velocity_lag;
         p.outliers = self.outlier_params()?;
+        p.steady_q = SteadyQParams {
+            enabled: h.learn_steady_q,
+            min_scale: check(
+                "tracker.hybrid.steady_q_min_scale",
+                h.steady_q_min_scale,
+                0.0,
+                true,
+                1.0,
+            )?,
+            ..SteadyQParams::default()
+        };
         Ok(p)
     }
 

@@ -44,6 +44,7 @@ use super::models::{Cv, Matrix6, Matrix9, Model, State6, State9, ACC};
 use super::nis::NisWindow;
 use super::noise::{local_up, NoiseLearner, NoiseParams};
 use super::outlier::{OutlierGate, OutlierParams};
+use super::process_noise::{Narrow, SteadyQ, SteadyQParams};
 use super::{
     Estimate, FlightMode, Lateral, Measurement, Observed, PositionPrediction, TrackError, Tracker,
     TurnDirection,
@@ -180,6 +181,9 @@ pub struct HybridParams {
     /// is one a consistent filter shows once in 10⁶ reports, at most two in a row and
     /// while such reports are rare. Default on ([`OutlierParams::default`]).
     pub outliers: OutlierParams,
+    /// The CV filter's q_h scaled per aircraft by what its velocity reports show
+    /// ([`super::process_noise`]), at most the configured [`HybridParams::cv`]'s. Default on.
+    pub steady_q: SteadyQParams,
 }
 
 impl Default for HybridParams {
@@ -205,6 +209,7 @@ impl Default for HybridParams {
             noise: NoiseParams::default(),
             learn_velocity_lag: true,
             outliers: OutlierParams::default(),
+            steady_q: SteadyQParams::default(),
         }
     }
 }
@@ -321,6 +326,9 @@ pub struct HybridTracker {
     /// first report: under 400 bytes (`tests/memory_budget.rs`) that a tracker built without
     /// it does not hold. Kept over a restart like the noise.
     lag: Option<Box<VelocityLag>>,
+    /// Its CV filter's learned factor on q_h ([`super::process_noise`]). Kept over a
+    /// restart like the noise: how steadily it flies is the aircraft's.
+    steady_q: SteadyQ,
 }
 
 impl Default for HybridTracker {
@@ -354,6 +362,7 @@ impl HybridTracker {
             nis: NisWindow::default(),
             noise: NoiseLearner::default(),
             lag: None,
+            steady_q: SteadyQ::default(),
         }
     }
 
@@ -395,6 +404,15 @@ impl HybridTracker {
         }
     }
 
+    /// The CV filter's model: the configured one with q_h scaled by what the aircraft's
+    /// velocity reports showed ([`super::process_noise`]).
+    fn steady_cv(&self) -> Cv {
+        Cv {
+            q_h_m2ps3: self.params.cv.q_h_m2ps3 * self.steady_q.scale(),
+            ..self.params.cv
+        }
+    }
+
     /// Starts a track from the initiator's 9-state.
     fn start(&mut self, t_s: f64, x: &State9, p: &Matrix9, velocity: Option<&Observed>) {
         self.branch = Branch::Cv {
@@ -408,6 +426,7 @@ impl HybridTracker {
         self.cv_divergence_run = 0;
         self.diverging = false;
         self.last_velocity_t_s = None;
+        self.steady_q.restart();
         self.nis.clear();
         if let Some(v) = velocity {
             let local = to_local_axes(&kalman::rows::<3, _>(x, 0), v);
@@ -425,9 +444,10 @@ impl HybridTracker {
         obs: &Observation,
         vouched: bool,
     ) -> Result<bool, TrackError> {
+        let cv = self.steady_cv();
         let nis = match &mut self.branch {
             Branch::Cv { x, p } => {
-                let (f, q) = MotionModel::<6>::fq(&self.params.cv, dt_s);
+                let (f, q) = MotionModel::<6>::fq(&cv, dt_s);
                 let_prediction!(pred = f, q; *x, p);
                 let (mut x_new, mut p_new) = (State6::zeros(), Matrix6::zeros());
                 let g = guarded_update(
@@ -450,6 +470,18 @@ impl HybridTracker {
                 }
                 *x = x_new;
                 *p = p_new;
+                // The report's term of the windowed NIS, its quantiles taken once.
+                let published = g.published_nis();
+                self.steady_q.learn(
+                    dt_s,
+                    matches!(obs, Observation::Velocity(_) | Observation::Both(..)),
+                    g.on_grid.map(|og| Narrow {
+                        nis: published,
+                        claim_var: og.claim_var(),
+                    }),
+                    self.params.cv.q_h_m2ps3,
+                    &self.params.steady_q,
+                );
                 // Published: a divergence the suppressor acts on (paper 000's criterion on
                 // `confirm` consecutive reports), not each chance event; a consistent
                 // filter meets the criterion on a few % of reports, four in a row almost
@@ -465,7 +497,7 @@ impl HybridTracker {
                         - p.fixed_view::<3, 3>(3, 3);
                 }
                 self.stats.cv_updates += 1;
-                g.published_nis()
+                published
             }
             Branch::Imm { .. } => {
                 self.imm.step(dt_s, obs)?;
@@ -618,7 +650,7 @@ impl HybridTracker {
             Branch::Cv { x, p } => {
                 for ((tag, t_s), dt_s) in steps {
                     let (mut x, mut p) = (*x, *p);
-                    MotionModel::<6>::predict(&self.params.cv, &mut x, &mut p, dt_s);
+                    MotionModel::<6>::predict(&self.steady_cv(), &mut x, &mut p, dt_s);
                     each(tag, t_s, &x, &p);
                 }
             }
@@ -725,6 +757,7 @@ impl HybridTracker {
             Branch::Imm { .. } if t_s - self.last_fire_t_s >= self.params.min_manoeuvre_dwell_s => {
                 let (x, p) = self.imm.combined_leading::<6>();
                 self.branch = Branch::Cv { x, p };
+                self.steady_q.restart();
                 // Not read again before the next switch's reset: 2.6 KB less per aircraft.
                 self.imm.release();
                 self.stats.to_cv += 1;
@@ -928,7 +961,7 @@ impl Tracker for HybridTracker {
         if let (Branch::Cv { x, p }, Some(track_t_s)) = (&self.branch, self.init.track_t_s()) {
             let bias = |var_e, var_n| self.noise.with_position_bias_var(var_e, var_n);
             super::predict_horizontal_positions(
-                &self.params.cv,
+                &self.steady_cv(),
                 track_t_s,
                 x,
                 p,

@@ -20,6 +20,7 @@ pub mod models;
 pub mod nis;
 pub mod noise;
 pub mod outlier;
+pub mod process_noise;
 pub mod quantised;
 pub mod shared;
 pub mod singer;

@@ -212,6 +212,11 @@ impl OnGrid {
         [east.quantile_residual(u_e), north.quantile_residual(u_n)]
     }
 
+    /// The claim's variance before rounding, mean of its two axes.
+    pub fn claim_var(&self) -> f64 {
+        0.5 * (self.cov[0] + self.cov[2])
+    }
+
     /// The report's term of the windowed NIS: the sum of its squared quantile residuals,
     /// χ²(2) when the claim is right.
     pub fn nis(&self) -> f64 {

@@ -131,7 +131,7 @@ impl SteadyQ {
             return;
         };
         let q_span = q_h_m2ps3 * span_s;
-        if !(span_s <= MAX_SPAN_S && q_span > 0.0) {
+        if !(span_s <= MAX_SPAN_S && q_span > 0.0 && g.nis.is_finite()) {
             return;
         }
         let ratio = (0.5 * g.nis).min(params.outlier_ratio);
@@ -365,6 +365,15 @@ mod tests {
             disabled.learn(0.5, true, Some(narrow), 0.06, &off);
         }
         assert_eq!(disabled.scale(), 1.0);
+        // A NIS that is not a number (a claim that is not a covariance) teaches nothing.
+        let mut nan = SteadyQ::default();
+        let bad = Narrow {
+            nis: f64::NAN,
+            ..narrow
+        };
+        nan.learn(0.0, true, Some(bad), 0.06, &params);
+        nan.learn(0.5, true, Some(bad), 0.06, &params);
+        assert_eq!(nan.scale(), 1.0);
         // The same report within its span does teach: a zero residual on a claim of 0.05
         // (m/s)² says the velocity is steadier than configured.
         let mut taught = SteadyQ::default();

@@ -465,9 +465,8 @@ impl Tracker for CvKalman {
                 let on_grid = vel
                     .grid
                     .and_then(|g| OnGrid::of(&inn.residual, &inn.s, &vel.cov, &vel.value, &g));
-                let gaussian = super::nis::horizontal(&inn, &vel.cov);
                 self.nis.push(
-                    on_grid.map_or(gaussian, |g| g.nis()),
+                    on_grid.map_or_else(|| super::nis::horizontal(&inn, &vel.cov), |g| g.nis()),
                     super::nis::horizontal_dof(None, Some(vel)),
                 );
                 None

@@ -648,9 +648,10 @@ impl HybridTracker {
             steps.filter_map(|(tag, t_s)| Some(((tag, t_s), super::time_ahead_s(track_t_s, t_s)?)));
         match &self.branch {
             Branch::Cv { x, p } => {
+                let cv = self.steady_cv();
                 for ((tag, t_s), dt_s) in steps {
                     let (mut x, mut p) = (*x, *p);
-                    MotionModel::<6>::predict(&self.steady_cv(), &mut x, &mut p, dt_s);
+                    MotionModel::<6>::predict(&cv, &mut x, &mut p, dt_s);
                     each(tag, t_s, &x, &p);
                 }
             }

@@ -158,7 +158,7 @@ mod tests {
     use crate::track::divergence::{guarded_update, let_prediction, DivergenceParams, Observation};
     use crate::track::kalman::MotionModel;
     use crate::track::models::{Cv, Matrix6, State6};
-    use crate::track::quantised::Grid;
+    use crate::track::quantised::{Grid, OnGrid};
     use crate::track::Observed;
     use nalgebra::{Matrix3, Vector3};
     use rand::rngs::StdRng;
@@ -167,6 +167,14 @@ mod tests {
 
     /// 1 kt, m/s.
     const KT: f64 = 0.514_444;
+
+    /// What the hybrid hands the learner for a report on a grid.
+    fn narrow(og: OnGrid) -> Narrow {
+        Narrow {
+            nis: og.nis(),
+            claim_var: og.claim_var(),
+        }
+    }
 
     /// What a run learned: the final s, and the mean quantile NIS of the velocity reports
     /// over its second half.
@@ -233,11 +241,7 @@ mod tests {
             let_prediction!(pred = f, q; x, &p);
             let (mut x_new, mut p_new) = (State6::zeros(), Matrix6::zeros());
             let g = guarded_update(&pred, &obs, &divergence, 0, &mut x_new, &mut p_new).unwrap();
-            let narrow = g.on_grid.map(|og| Narrow {
-                nis: og.nis(),
-                claim_var: og.claim_var(),
-            });
-            learner.learn(dt, velocity_report, narrow, q0, &params);
+            learner.learn(dt, velocity_report, g.on_grid.map(narrow), q0, &params);
             if let (Some(og), true) = (g.on_grid, k > steps / 2) {
                 nis_sum += og.nis();
                 nis_n += 1;
@@ -340,21 +344,18 @@ mod tests {
         let s = Matrix3::from_diagonal(&Vector3::new(0.05, 0.05, 1.0));
         let r = Matrix3::from_diagonal(&Vector3::new(0.03, 0.03, 1.0));
         let z = Vector3::new(100.0 * KT, 0.0, 0.0);
-        let narrow = crate::track::quantised::OnGrid::of(
+        let report = OnGrid::of(
             &Vector3::zeros(),
             &s,
             &r,
             &z,
             &Grid::new(KT, &Matrix3::identity()),
         )
-        .map(|og| Narrow {
-            nis: og.nis(),
-            claim_var: og.claim_var(),
-        })
+        .map(narrow)
         .unwrap();
         let mut late = SteadyQ::default();
-        late.learn(0.0, true, Some(narrow), 0.06, &params);
-        late.learn(MAX_SPAN_S + 0.1, true, Some(narrow), 0.06, &params);
+        late.learn(0.0, true, Some(report), 0.06, &params);
+        late.learn(MAX_SPAN_S + 0.1, true, Some(report), 0.06, &params);
         assert_eq!(late.scale(), 1.0);
         let off = SteadyQParams {
             enabled: false,
@@ -362,14 +363,14 @@ mod tests {
         };
         let mut disabled = SteadyQ::default();
         for _ in 0..100 {
-            disabled.learn(0.5, true, Some(narrow), 0.06, &off);
+            disabled.learn(0.5, true, Some(report), 0.06, &off);
         }
         assert_eq!(disabled.scale(), 1.0);
         // A NIS that is not a number (a claim that is not a covariance) teaches nothing.
         let mut nan = SteadyQ::default();
         let bad = Narrow {
             nis: f64::NAN,
-            ..narrow
+            ..report
         };
         nan.learn(0.0, true, Some(bad), 0.06, &params);
         nan.learn(0.5, true, Some(bad), 0.06, &params);
@@ -378,7 +379,7 @@ mod tests {
         // (m/s)² says the velocity is steadier than configured.
         let mut taught = SteadyQ::default();
         for _ in 0..100 {
-            taught.learn(0.5, true, Some(narrow), 0.06, &params);
+            taught.learn(0.5, true, Some(report), 0.06, &params);
         }
         assert!(taught.scale() < 0.9, "{}", taught.scale());
     }

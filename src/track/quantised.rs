@@ -49,6 +49,13 @@ use statrs::function::erf::{erfc, erfc_inv};
 /// hybrid's CV filter).
 pub const MIN_WHITE_VAR_M2PS2: f64 = 0.05 * 0.05;
 
+/// A report's own noise before rounding, per horizontal axis: the mean of its two horizontal
+/// variances `r_a`, `r_b` less the rounding's Δ²/12 (which every report on a grid counts),
+/// at least [`MIN_WHITE_VAR_M2PS2`].
+fn white_var(r_a: f64, r_b: f64, step: f64) -> f64 {
+    (0.5 * (r_a + r_b) - step * step / 12.0).max(MIN_WHITE_VAR_M2PS2)
+}
+
 /// The grid a report's horizontal components were rounded to.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Grid {
@@ -145,8 +152,7 @@ impl OnGrid {
         // horizontal axis, taken on the track frame's axes (a threshold, not a bin: the
         // grid's axes are turned from them by a few degrees). A NaN is not wide, and is
         // refused below.
-        let white_frame =
-            (0.5 * (r[(0, 0)] + r[(1, 1)]) - step * step / 12.0).max(MIN_WHITE_VAR_M2PS2);
+        let white_frame = white_var(r[(0, 0)], r[(1, 1)], step);
         let narrowest = (s[(0, 0)] - r[(0, 0)]).min(s[(1, 1)] - r[(1, 1)]) + white_frame;
         if narrowest >= (WIDE_CLAIM_STEPS * step).powi(2) {
             return None;
@@ -168,7 +174,7 @@ impl OnGrid {
         let (a0, a1) = (m.column(0).into_owned(), m.column(1).into_owned());
         let quad = |x: &Matrix3<f64>, u: &Vector3<f64>, v: &Vector3<f64>| u.dot(&(x * v));
         let (ree, ren, rnn) = (quad(r, &a0, &a0), quad(r, &a0, &a1), quad(r, &a1, &a1));
-        let white = (0.5 * (ree + rnn) - step * step / 12.0).max(MIN_WHITE_VAR_M2PS2);
+        let white = white_var(ree, rnn, step);
         let (ze, zn) = (a0.dot(reported), a1.dot(reported));
         let (ee, en) = (a0.dot(residual), a1.dot(residual));
         let g = Self {

@@ -12,6 +12,7 @@ use crate::track::imm::{ImmParams, ImmTrackerParams, N_MODES};
 use crate::track::noise::NoiseParams;
 use crate::track::outlier::OutlierParams;
 use crate::track::process_noise::SteadyQParams;
+use crate::track::tails::TailParams;
 use serde::Deserialize;
 
 #[derive(Clone, Debug, Deserialize, PartialEq)]
@@ -188,6 +189,10 @@ pub struct HybridConfig {
     /// (`track::process_noise`), down to `steady_q_min_scale` times `steady_q_horizontal`.
     pub learn_steady_q: bool,
     pub steady_q_min_scale: f64,
+    /// Read a position report's term of the hybrid's windowed NIS under a Student-t claim
+    /// whose covariance is the filter's and whose tail index is learned per aircraft
+    /// (`track::tails`); false: the Gaussian NIS. The estimate is the same either way.
+    pub learn_position_tails: bool,
     /// Bounds of the learned factor on the declared covariance.
     pub noise_scale_limits: [f64; 2],
     /// An innovation's εᵀε is winsorised at this many times Tr(S) before the learner
@@ -553,6 +558,10 @@ impl TrackerConfig {
                 1.0,
             )?,
             ..SteadyQParams::default()
+        };
+        p.tails = TailParams {
+            enabled: h.learn_position_tails,
+            ..TailParams::default()
         };
         Ok(p)
     }

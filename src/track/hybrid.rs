@@ -45,6 +45,7 @@ use super::nis::NisWindow;
 use super::noise::{local_up, NoiseLearner, NoiseParams};
 use super::outlier::{OutlierGate, OutlierParams};
 use super::process_noise::{Narrow, SteadyQ, SteadyQParams};
+use super::tails::{PositionTails, TailParams};
 use super::{
     Estimate, FlightMode, Lateral, Measurement, Observed, PositionPrediction, TrackError, Tracker,
     TurnDirection,
@@ -184,6 +185,9 @@ pub struct HybridParams {
     /// The CV filter's q_h scaled per aircraft by what its velocity reports show
     /// ([`super::process_noise`]), at most the configured [`HybridParams::cv`]'s. Default on.
     pub steady_q: SteadyQParams,
+    /// A position report's term of the windowed NIS read under a Student-t claim of the
+    /// aircraft's own tail index ([`super::tails`]); the estimate is unchanged. Default on.
+    pub tails: TailParams,
 }
 
 impl Default for HybridParams {
@@ -210,6 +214,7 @@ impl Default for HybridParams {
             learn_velocity_lag: true,
             outliers: OutlierParams::default(),
             steady_q: SteadyQParams::default(),
+            tails: TailParams::default(),
         }
     }
 }
@@ -329,6 +334,9 @@ pub struct HybridTracker {
     /// Its CV filter's learned factor on q_h ([`super::process_noise`]). Kept over a
     /// restart like the noise: how steadily it flies is the aircraft's.
     steady_q: SteadyQ,
+    /// The tail index of its CV filter's position innovations ([`super::tails`]). Kept over
+    /// a restart like the noise.
+    tails: PositionTails,
 }
 
 impl Default for HybridTracker {
@@ -363,6 +371,7 @@ impl HybridTracker {
             noise: NoiseLearner::default(),
             lag: None,
             steady_q: SteadyQ::default(),
+            tails: PositionTails::default(),
         }
     }
 
@@ -470,8 +479,15 @@ impl HybridTracker {
                 }
                 *x = x_new;
                 *p = p_new;
-                // The report's term of the windowed NIS, its quantiles taken once.
-                let published = g.published_nis();
+                // The report's term of the windowed NIS, its quantiles taken once; a
+                // position's read under the aircraft's tail index before it learns from it.
+                let published = if matches!(obs, Observation::Position(_)) {
+                    let term = self.tails.nis(g.nis_horizontal, &self.params.tails);
+                    self.tails.learn(g.nis_horizontal, &self.params.tails);
+                    term
+                } else {
+                    g.published_nis()
+                };
                 self.steady_q.learn(
                     dt_s,
                     matches!(obs, Observation::Velocity(_) | Observation::Both(..)),
@@ -852,11 +868,13 @@ impl Tracker for HybridTracker {
     fn reset(&mut self) {
         let noise = self.noise;
         let outliers = self.outliers;
+        let tails = self.tails;
         let lag = super::lag::kept_over_restart(self.lag.take());
         *self = Self::new(*self.params);
         self.noise = noise;
         self.noise.forget_position();
         self.outliers = outliers;
+        self.tails = tails;
         self.lag = lag;
     }
 

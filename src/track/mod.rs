@@ -24,6 +24,7 @@ pub mod process_noise;
 pub mod quantised;
 pub mod shared;
 pub mod singer;
+pub mod tails;
 pub mod vsimm;
 
 use nalgebra::{Matrix3, Vector3};

@@ -20,14 +20,20 @@
 //! t's survival function is (1 + d²/(ν − 2))^(−ν/2), and the χ²(2) quantile of the same
 //! probability is ν ln(1 + d²/(ν − 2)) ([`t_nis`]), d² itself as ν → ∞.
 //!
-//! ν is learned from a statistic that does not see the covariance's size: the ratio of the
-//! 90th to the 50th percentile of the aircraft's d², (10^(2/ν) − 1)/(2^(2/ν) − 1) for the
-//! t at any scale, ln 10 / ln 2 = 3.32 for the Gaussian ([`tail_index`]). So a filter too
-//! sure or too cautious by a factor still shows as a NIS off its band (module test
-//! `a_scale_error_still_shows`); only the shape is the aircraft's. The percentiles are
-//! stochastic-approximation estimates (Robbins & Monro 1951) of ln d², with a gain that
-//! falls as 1/n to a floor, from the Gaussian's as a prior: Gaussian innovations keep a ν
-//! of tens or more, which leaves their terms within a few % of d².
+//! ν is learned from a statistic that does not see the covariance's size, on the report's
+//! innovation along the track standardised by its own predicted variance, z = aᵀε/√(aᵀSa)
+//! (a the horizontal direction of the predicted velocity): for the t every projection is a
+//! univariate t of the same ν, and the ratio of the 90th to the 50th percentile of z² is
+//! (t_ν(0.95)/t_ν(0.75))² at any scale, 5.95 for the Gaussian ([`tail_index`]). So a filter
+//! too sure or too cautious by a factor still shows as a NIS off its band (module test
+//! `a_scale_error_still_shows`), and so does one whose error along the track is larger than
+//! it claims there and not across it, the simulator's `airliner-timing`: its d² is a
+//! Gaussian mixture of two widths whose 2-D percentile ratio reads as a tail (ν ≈ 4), its z
+//! is Gaussian (`an_error_along_the_track_alone_still_shows`). Only the shape is the
+//! aircraft's. The percentiles are stochastic-approximation estimates (Robbins & Monro
+//! 1951) of ln z², with a gain that falls as 1/n to a floor, from the Gaussian's as a prior:
+//! Gaussian innovations keep a ν of tens or more, which leaves their terms within a few %
+//! of d².
 //!
 //! Only the hybrid's CV filter learns and uses it, on its position reports: a manoeuvre's
 //! innovations are model error, and the velocity reports' terms are their bins' quantile
@@ -38,11 +44,10 @@
 pub struct TailParams {
     /// Learn and use ν; `false` reads every position term as Gaussian (ν = ∞). Default true.
     pub enabled: bool,
-    /// Lowest ν. Default 3: the covariance exists above 2, and AFR34ZG's d² give about 3.2.
+    /// Lowest ν. Default 3: the covariance exists above 2.
     pub min_nu: f64,
-    /// Floor of the percentile estimates' gain, in ln d² per report. Default 0.005: a
-    /// memory of a few hundred reports; the log-ratio is then good to about 0.05, a ν of
-    /// 30 or more on Gaussian innovations.
+    /// Floor of the percentile estimates' gain, in ln z² per report. Default 0.005: a
+    /// memory of a few hundred reports; the log-ratio is then good to about 0.07.
     pub min_gain: f64,
 }
 
@@ -56,25 +61,28 @@ impl Default for TailParams {
     }
 }
 
-/// The percentiles of d² that set ν.
+/// The percentiles of z² that set ν.
 const P_LOW: f64 = 0.5;
 const P_HIGH: f64 = 0.9;
 
 /// The gain is `GAIN / (n + PRIOR_REPORTS)`, down to the floor: about one over the density
-/// of ln d² at its median for χ²(2) (0.35), the efficient gain for a quantile.
-const GAIN: f64 = 3.0;
+/// of ln z² at its median for χ²(1) (0.21), the efficient gain for a quantile.
+const GAIN: f64 = 5.0;
 
 /// The Gaussian percentiles count as this many reports.
 const PRIOR_REPORTS: f64 = 30.0;
 
-/// ν is solved again after this many reports (a bisection of 40 steps; between two, ν
-/// moves by far less than its own uncertainty).
-const SOLVE_EVERY: u16 = 16;
+/// ν is solved again after this many reports (a bisection of [`BISECTIONS`] steps on a
+/// table; between two solves ν moves by far less than its own uncertainty, some 10 %).
+const SOLVE_EVERY: u16 = 32;
+
+/// Steps of the bisection on κ = 2/ν: κ to 3·10⁻⁷, ν to 10⁻⁴ of itself up to ν = 100.
+const BISECTIONS: u32 = 20;
 
 /// An aircraft's learned tail index of its position innovations (module doc).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PositionTails {
-    /// ln of the 50th and 90th percentiles of d².
+    /// ln of the 50th and 90th percentiles of z².
     ln_low: f64,
     ln_high: f64,
     /// Reports learned from (the gain's 1/n), saturating.
@@ -88,9 +96,9 @@ pub struct PositionTails {
 impl Default for PositionTails {
     fn default() -> Self {
         Self {
-            // χ²(2)'s: −2 ln(1 − p).
-            ln_low: (-2.0 * (1.0 - P_LOW).ln()).ln(),
-            ln_high: (-2.0 * (1.0 - P_HIGH).ln()).ln(),
+            // χ²(1)'s: the squares of the normal's (1 + p)/2 quantiles.
+            ln_low: (2.0 * NORMAL_Q75.ln()),
+            ln_high: (2.0 * NORMAL_Q95.ln()),
             n: 0.0,
             nu: f64::INFINITY,
             since_solve: 0,
@@ -114,13 +122,13 @@ impl PositionTails {
         }
     }
 
-    /// Learns from one position report's horizontal Gaussian NIS `d2` (ignored unless
-    /// finite and positive).
-    pub fn learn(&mut self, d2: f64, params: &TailParams) {
-        if !(params.enabled && d2.is_finite() && d2 > 0.0) {
+    /// Learns from one position report's innovation along the track, standardised by its
+    /// predicted standard deviation there, `z` (ignored unless finite and non-zero).
+    pub fn learn(&mut self, z: f64, params: &TailParams) {
+        let y = (z * z).ln();
+        if !(params.enabled && y.is_finite()) {
             return;
         }
-        let y = d2.ln();
         self.n = (self.n + 1.0).min(1.0e9);
         let gain = (GAIN / (self.n + PRIOR_REPORTS)).max(params.min_gain);
         let step = |q: &mut f64, p: f64| *q += gain * (p - f64::from(u8::from(y <= *q)));
@@ -145,23 +153,48 @@ pub fn t_nis(d2: f64, nu: f64) -> f64 {
     }
 }
 
-/// The ratio of the 90th to the 50th percentile of d² for a bivariate t of tail index
-/// 2/κ at any scale: (10^κ − 1)/(2^κ − 1), with expm1 (its κ → 0 limit, the Gaussian's, is
-/// ln 10 / ln 2).
+/// The standard normal's 75th and 95th percentiles.
+const NORMAL_Q75: f64 = 0.674_489_750_196_081_7;
+const NORMAL_Q95: f64 = 1.644_853_626_951_472_7;
+
+/// Points of the table of [`percentile_ratio`], evenly in κ = 2/ν over `(0, 2/3]`.
+const TABLE_POINTS: usize = 64;
+
+/// The largest κ of the table (ν = 3).
+const KAPPA_TABLE_MAX: f64 = 2.0 / 3.0;
+
+/// The ratio of the 90th to the 50th percentile of z² for a univariate t of tail index
+/// ν = 2/κ at any scale, (t_ν(0.95)/t_ν(0.75))²; κ = 0 is the Gaussian's, 5.95. Tabulated
+/// once (Student's t quantiles are iterative) and interpolated linearly in κ: the
+/// ratio is smooth in κ, the table good to 10⁻³ of it.
 fn percentile_ratio(kappa: f64) -> f64 {
-    let (ln_high, ln_low) = (-(1.0 - P_HIGH).ln(), -(1.0 - P_LOW).ln());
-    if kappa <= 0.0 {
-        ln_high / ln_low
-    } else {
-        (kappa * ln_high).exp_m1() / (kappa * ln_low).exp_m1()
+    use statrs::distribution::{ContinuousCDF, StudentsT};
+    use std::sync::OnceLock;
+    static TABLE: OnceLock<[f64; TABLE_POINTS + 1]> = OnceLock::new();
+    let table = TABLE.get_or_init(|| {
+        let mut t = [(NORMAL_Q95 / NORMAL_Q75).powi(2); TABLE_POINTS + 1];
+        for (i, r) in t.iter_mut().enumerate().skip(1) {
+            let nu = 2.0 / (KAPPA_TABLE_MAX * i as f64 / TABLE_POINTS as f64);
+            if let Ok(d) = StudentsT::new(0.0, 1.0, nu) {
+                *r = (d.inverse_cdf(0.95) / d.inverse_cdf(0.75)).powi(2);
+            }
+        }
+        t
+    });
+    let at = (kappa.max(0.0) / KAPPA_TABLE_MAX * TABLE_POINTS as f64).min(TABLE_POINTS as f64);
+    let i = (at.floor() as usize).min(TABLE_POINTS - 1);
+    let frac = at - i as f64;
+    match (table.get(i), table.get(i + 1)) {
+        (Some(a), Some(b)) => a + frac * (b - a),
+        _ => f64::NAN,
     }
 }
 
 /// The tail index ν whose percentile ratio ([`percentile_ratio`]) is `ratio`, at least
-/// `min_nu`; ∞ for a ratio at or below the Gaussian's. The ratio rises with κ = 2/ν, so a
-/// bisection on κ.
+/// `min_nu` (and at least 3, the table's end); ∞ for a ratio at or below the Gaussian's. The
+/// ratio rises with κ = 2/ν, so a bisection on κ.
 pub fn tail_index(ratio: f64, min_nu: f64) -> f64 {
-    let kappa_max = 2.0 / min_nu.max(2.0 + 1e-6);
+    let kappa_max = (2.0 / min_nu.max(2.0 + 1e-6)).min(KAPPA_TABLE_MAX);
     if !(ratio > percentile_ratio(0.0)) {
         return f64::INFINITY;
     }
@@ -169,7 +202,7 @@ pub fn tail_index(ratio: f64, min_nu: f64) -> f64 {
         return 2.0 / kappa_max;
     }
     let (mut lo, mut hi) = (0.0, kappa_max);
-    for _ in 0..40 {
+    for _ in 0..BISECTIONS {
         let mid = 0.5 * (lo + hi);
         if percentile_ratio(mid) < ratio {
             lo = mid;
@@ -189,31 +222,38 @@ pub fn tail_index(ratio: f64, min_nu: f64) -> f64 {
 mod tests {
     use super::*;
     use rand::rngs::StdRng;
-    use rand::{Rng, SeedableRng};
+    use rand::SeedableRng;
+    use rand_distr::{ChiSquared, Distribution, StandardNormal};
 
-    /// A draw of d² for a bivariate t of tail index `nu` and covariance I (ν = ∞: χ²(2)),
-    /// by inverting its survival function (module doc).
-    fn draw_d2(rng: &mut StdRng, nu: f64) -> f64 {
-        let u: f64 = rng.gen_range(f64::EPSILON..1.0);
-        if nu.is_finite() {
-            (nu - 2.0) * (u.powf(-2.0 / nu) - 1.0)
+    /// χ²(2)'s 99.9th percentile, −2 ln 0.001.
+    const CHI2_999: f64 = 13.815_510_557_964_274;
+
+    /// One report's (d², z) for a bivariate t innovation of tail index `nu` (∞: Gaussian)
+    /// whose true covariance is diag(`along`², `across`²) against a claimed S = I: a normal
+    /// pair over the t's shared mixing variable.
+    fn draw(rng: &mut StdRng, nu: f64, along: f64, across: f64) -> (f64, f64) {
+        let (g1, g2): (f64, f64) = (StandardNormal.sample(rng), StandardNormal.sample(rng));
+        let mix = if nu.is_finite() {
+            let w: f64 = ChiSquared::new(nu).map_or(nu, |c| c.sample(rng));
+            ((nu - 2.0) / w).sqrt()
         } else {
-            -2.0 * u.ln()
-        }
+            1.0
+        };
+        let (a, c) = (mix * along * g1, mix * across * g2);
+        (a * a + c * c, a)
     }
 
-    /// What a learner makes of `n` draws of tail index `nu` scaled by `scale` (a filter
-    /// whose S is `1/scale` of the truth): its ν, and the mean and the share above χ²(2)'s
-    /// 99.9th percentile (13.8) of its terms over the second half.
-    fn learn(nu: f64, scale: f64, n: usize, seed: u64) -> (f64, f64, f64) {
+    /// What a learner makes of `n` reports ([`draw`]): its ν, and the mean and the share
+    /// above χ²(2)'s 99.9th percentile of its terms over the second half.
+    fn learn(nu: f64, along: f64, across: f64, n: usize, seed: u64) -> (f64, f64, f64) {
         let mut rng = StdRng::seed_from_u64(seed);
         let params = TailParams::default();
         let mut tails = PositionTails::default();
         let (mut sum, mut above, mut count) = (0.0, 0usize, 0usize);
         for k in 0..n {
-            let d2 = scale * draw_d2(&mut rng, nu);
+            let (d2, z) = draw(&mut rng, nu, along, across);
             let term = tails.nis(d2, &params);
-            tails.learn(d2, &params);
+            tails.learn(z, &params);
             if k >= n / 2 {
                 sum += term;
                 above += usize::from(term > CHI2_999);
@@ -222,9 +262,6 @@ mod tests {
         }
         (tails.nu(), sum / count as f64, above as f64 / count as f64)
     }
-
-    /// χ²(2)'s 99.9th percentile, −2 ln 0.001.
-    const CHI2_999: f64 = 13.815_510_557_964_274;
 
     #[test]
     fn the_term_is_the_chi_square_quantile_of_the_t_probability() {
@@ -246,24 +283,29 @@ mod tests {
 
     #[test]
     fn the_tail_index_inverts_the_percentile_ratio() {
-        for nu in [3.0, 3.2, 4.0, 6.0, 20.0, 100.0] {
-            let got = tail_index(percentile_ratio(2.0 / nu), 3.0);
-            assert!((got - nu).abs() < 1e-6 * nu, "{nu}: {got}");
+        use statrs::distribution::{ContinuousCDF, StudentsT};
+        // The table against Student's t between its points, and its Gaussian end.
+        for nu in [3.1, 3.7, 5.3, 9.0, 27.0, 300.0] {
+            let d = StudentsT::new(0.0, 1.0, nu).unwrap();
+            let want = (d.inverse_cdf(0.95) / d.inverse_cdf(0.75)).powi(2);
+            let got = percentile_ratio(2.0 / nu);
+            assert!((got / want - 1.0).abs() < 1e-3, "{nu}: {got} {want}");
+            let back = tail_index(want, 3.0);
+            assert!((back / nu - 1.0).abs() < 0.02, "{nu}: {back}");
         }
-        assert_eq!(tail_index(3.0, 3.0), f64::INFINITY);
+        assert!((percentile_ratio(0.0) - 5.9468).abs() < 1e-3);
+        assert_eq!(tail_index(5.0, 3.0), f64::INFINITY);
         assert_eq!(tail_index(f64::NAN, 3.0), f64::INFINITY);
-        // The Gaussian's ratio is ln 10 / ln 2; a heavier one than ν = 3 allows is held there.
-        assert!((percentile_ratio(0.0) - 10f64.ln() / 2f64.ln()).abs() < 1e-12);
-        assert!((percentile_ratio(1e-9) - percentile_ratio(0.0)).abs() < 1e-6);
-        assert_eq!(tail_index(50.0, 3.0), 3.0);
+        // A heavier tail than ν = 3 allows is held there.
+        assert_eq!(tail_index(500.0, 3.0), 3.0);
     }
 
     #[test]
     fn gaussian_innovations_stay_gaussian() {
         for seed in 0..4 {
-            let (nu, mean, above) = learn(f64::INFINITY, 1.0, 4000, seed);
-            assert!(nu > 12.0, "seed {seed}: ν {nu}");
-            assert!((mean - 2.0).abs() < 0.12, "seed {seed}: mean {mean}");
+            let (nu, mean, above) = learn(f64::INFINITY, 1.0, 1.0, 4000, seed);
+            assert!(nu > 8.0, "seed {seed}: ν {nu}");
+            assert!((mean - 2.0).abs() < 0.15, "seed {seed}: mean {mean}");
             assert!(above < 0.003, "seed {seed}: above {above}");
         }
     }
@@ -271,16 +313,18 @@ mod tests {
     #[test]
     fn learns_a_heavy_tail_and_reads_it_as_chi_square() {
         for seed in 0..4 {
-            let (nu, mean, above) = learn(4.0, 1.0, 4000, seed);
-            assert!((3.0..=5.5).contains(&nu), "seed {seed}: ν {nu}");
-            assert!((mean - 2.0).abs() < 0.2, "seed {seed}: mean {mean}");
-            assert!(above < 0.004, "seed {seed}: above {above}");
+            let (nu, mean, above) = learn(4.0, 1.0, 1.0, 4000, seed);
+            assert!((3.0..=6.0).contains(&nu), "seed {seed}: ν {nu}");
+            assert!((mean - 2.0).abs() < 0.25, "seed {seed}: mean {mean}");
+            assert!(above < 0.005, "seed {seed}: above {above}");
             // Read as Gaussian, the same draws are beyond χ²(2)'s 99.9th percentile 16 times
             // as often: (1 + 13.8/2)⁻² = 1.6 %.
             let mut rng = StdRng::seed_from_u64(seed);
             let n = 4000;
-            let gaussian_above =
-                (0..n).filter(|_| draw_d2(&mut rng, 4.0) > CHI2_999).count() as f64 / n as f64;
+            let gaussian_above = (0..n)
+                .filter(|_| draw(&mut rng, 4.0, 1.0, 1.0).0 > CHI2_999)
+                .count() as f64
+                / n as f64;
             assert!(gaussian_above > 0.01, "seed {seed}: {gaussian_above}");
         }
     }
@@ -289,24 +333,37 @@ mod tests {
     fn a_scale_error_still_shows() {
         // A filter three times too sure (every d² three times its claim) or three times too
         // cautious: ν stays the Gaussian's, and the terms' mean is 6 or 2/3.
-        for (scale, want) in [(3.0, 6.0), (1.0 / 3.0, 2.0 / 3.0)] {
-            let (nu, mean, _) = learn(f64::INFINITY, scale, 4000, 7);
-            assert!(nu > 25.0, "scale {scale}: ν {nu}");
-            assert!((mean / want - 1.0).abs() < 0.08, "scale {scale}: mean {mean}");
+        let root3 = 3f64.sqrt();
+        for (sd, want) in [(root3, 6.0), (1.0 / root3, 2.0 / 3.0)] {
+            let (nu, mean, _) = learn(f64::INFINITY, sd, sd, 4000, 7);
+            assert!(nu > 8.0, "sd {sd}: ν {nu}");
+            assert!((mean / want - 1.0).abs() < 0.1, "sd {sd}: mean {mean}");
         }
         // A heavy tail too sure by 3: the shape is learned, the size still shows.
-        let (nu, mean, _) = learn(4.0, 3.0, 4000, 7);
-        assert!((3.0..=5.5).contains(&nu), "ν {nu}");
+        let (nu, mean, _) = learn(4.0, root3, root3, 4000, 7);
+        assert!((3.0..=6.0).contains(&nu), "ν {nu}");
         assert!(mean > 3.0, "mean {mean}");
     }
 
     #[test]
-    fn only_a_finite_positive_nis_teaches() {
+    fn an_error_along_the_track_alone_still_shows() {
+        // Three times the claimed deviation along the track, as claimed across it: d² is a
+        // mixture of two Gaussian widths (mean 10), z a Gaussian of the wrong size.
+        for seed in 0..4 {
+            let (nu, mean, above) = learn(f64::INFINITY, 3.0, 1.0, 4000, seed);
+            assert!(nu > 8.0, "seed {seed}: ν {nu}");
+            assert!(mean > 7.0, "seed {seed}: ν {nu} mean {mean}");
+            assert!(above > 0.1, "seed {seed}: above {above}");
+        }
+    }
+
+    #[test]
+    fn only_a_finite_non_zero_innovation_teaches() {
         let params = TailParams::default();
         let mut tails = PositionTails::default();
-        for d2 in [f64::NAN, f64::INFINITY, -1.0, 0.0] {
+        for z in [f64::NAN, f64::INFINITY, f64::NEG_INFINITY, 0.0] {
             for _ in 0..100 {
-                tails.learn(d2, &params);
+                tails.learn(z, &params);
             }
         }
         assert_eq!(tails, PositionTails::default());
@@ -316,7 +373,7 @@ mod tests {
         };
         let mut rng = StdRng::seed_from_u64(3);
         for _ in 0..1000 {
-            tails.learn(draw_d2(&mut rng, 3.0), &off);
+            tails.learn(draw(&mut rng, 3.0, 1.0, 1.0).1, &off);
         }
         assert_eq!(tails, PositionTails::default());
         assert_eq!(tails.nis(9.0, &off), 9.0);

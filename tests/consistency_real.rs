@@ -163,7 +163,17 @@ fn afr34zg_position_tails_change_the_claim_not_the_track() {
         let states: Vec<_> = frames
             .iter()
             .filter_map(|f| p.push(f)?.state)
-            .map(|s| (s.t, s.lat, s.lon, s.alt_m, s.pos_sigma_m, s.mode, s.diverging))
+            .map(|s| {
+                (
+                    s.t,
+                    s.lat,
+                    s.lon,
+                    s.alt_m,
+                    s.pos_sigma_m,
+                    s.mode,
+                    s.diverging,
+                )
+            })
             .collect();
         let g = consistency::measure(&frames, &config, "hybrid");
         (states, g["all"].nis_in_band_pct().unwrap_or(f64::NAN))
@@ -173,7 +183,10 @@ fn afr34zg_position_tails_change_the_claim_not_the_track() {
     assert_eq!(gaussian.len(), t.len());
     assert!(gaussian == t, "an estimate moved");
     eprintln!("NIS in band: Gaussian {gaussian_in_band:.1} %, Student-t {t_in_band:.1} %");
-    assert!((72.0..=82.0).contains(&gaussian_in_band), "{gaussian_in_band}");
+    assert!(
+        (72.0..=82.0).contains(&gaussian_in_band),
+        "{gaussian_in_band}"
+    );
     assert!(t_in_band > gaussian_in_band + 5.0, "{t_in_band}");
 }
 

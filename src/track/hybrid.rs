@@ -237,7 +237,11 @@ impl HybridParams {
 /// deviation there ([`super::tails`]): aᵀε / √(aᵀ S a), with a the horizontal direction of
 /// the predicted velocity and S = P⁻ + R over the position; NaN when the aircraft barely
 /// moves (no track direction) or S is not positive there.
-fn along_track_z(pred: &super::divergence::Prediction<6>, r: &Matrix3<f64>, z: &Vector3<f64>) -> f64 {
+fn along_track_z(
+    pred: &super::divergence::Prediction<6>,
+    r: &Matrix3<f64>,
+    z: &Vector3<f64>,
+) -> f64 {
     let pos = kalman::rows::<3, _>(&pred.x, 0);
     let vel = kalman::rows::<3, _>(&pred.x, 3);
     let up = local_up(&pos);

@@ -273,7 +273,10 @@ mod tests {
                 let survival = f.sf(d2 * nu / (2.0 * (nu - 2.0)));
                 let want = -2.0 * survival.ln();
                 let got = t_nis(d2, nu);
-                assert!((got - want).abs() <= 1e-9 * want.max(1.0), "{nu} {d2}: {got} {want}");
+                assert!(
+                    (got - want).abs() <= 1e-9 * want.max(1.0),
+                    "{nu} {d2}: {got} {want}"
+                );
             }
         }
         assert_eq!(t_nis(3.7, f64::INFINITY), 3.7);

@@ -247,13 +247,13 @@ fn along_track_z(
     let up = local_up(&pos);
     let v_h = vel - up * vel.dot(&up);
     let speed = v_h.norm();
-    if !(speed > 1.0) {
+    if speed.is_nan() || speed <= 1.0 {
         return f64::NAN;
     }
     let a = v_h / speed;
     let s = pred.fpf.fixed_view::<3, 3>(0, 0) + pred.q.fixed_view::<3, 3>(0, 0) + r;
     let var = a.dot(&(s * a));
-    if !(var > 0.0) {
+    if var.is_nan() || var <= 0.0 {
         return f64::NAN;
     }
     a.dot(&(z - pos)) / var.sqrt()

@@ -195,7 +195,7 @@ fn percentile_ratio(kappa: f64) -> f64 {
 /// ratio rises with κ = 2/ν, so a bisection on κ.
 pub fn tail_index(ratio: f64, min_nu: f64) -> f64 {
     let kappa_max = (2.0 / min_nu.max(2.0 + 1e-6)).min(KAPPA_TABLE_MAX);
-    if !(ratio > percentile_ratio(0.0)) {
+    if ratio.is_nan() || ratio <= percentile_ratio(0.0) {
         return f64::INFINITY;
     }
     if ratio >= percentile_ratio(kappa_max) {

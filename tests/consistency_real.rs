@@ -8,19 +8,20 @@
 //!   updates: its covariance there is a third of what the data show.
 //! - The hybrid and the IMM learn each aircraft's noise (`track::noise`): on AFR34ZG
 //!   (declares nothing, so R starts from NUCp's 38 m per axis) the hybrid's position sigma
-//!   moves from 7 m to about 1.1 m, its windowed NIS per degree of freedom to about 0.89
+//!   moves from 7 m to about 1.1 m, its windowed NIS per degree of freedom to about 0.9
 //!   (the IMM's 0.56; the plain Kalman filter's 0.03). The NIS is over the horizontal
 //!   components (`track::nis`): at cruise the velocity reports hold still between 1-kt
 //!   steps, so half of what it sums stays near zero. Before the learner winsorised its
 //!   samples (`NoiseParams::outlier_ratio`), a few outlying reports held the hybrid's
 //!   learned noise up.
-//! - The windowed NIS is inside its band on 78 % of the hybrid's steady updates on AFR34ZG
-//!   since its CV filter's q_h is scaled per aircraft by what its velocity reports show
+//! - The windowed NIS is inside its band on 83 % of the hybrid's steady updates on AFR34ZG
+//!   since a position's term is read under the aircraft's learned tail index
+//!   (`track::tails`; 78 % read as Gaussian), 78 % since its CV filter's q_h is scaled per aircraft by what its velocity reports show
 //!   (`track::process_noise`: 48 % with the configured q_h, its velocity claim twice the
 //!   error) and a velocity report's term is its bin's randomised quantile residual
 //!   (`track::quantised`; 26 % with the Gaussian NIS of the rounded value, 17 % before the
-//!   steady-flight process noise), 39 % for the IMM (36 %), 19 % for the hybrid's LAX
-//!   NACp 10 aircraft, where the same statistic is inside it on 93-94 % of the updates on
+//!   steady-flight process noise), 39 % for the IMM (36 %), 25 % for the hybrid's LAX
+//!   NACp 10 aircraft (19 % read as Gaussian), where the same statistic is inside it on 93-94 % of the updates on
 //!   the simulator's white noise (`tests/tracker_bench.rs`): the statistic is calibrated,
 //!   these innovations are not Gaussian white noise. What is left on AFR34ZG is mostly
 //!   positions off in time along the track; on LAX the approximate timing
@@ -50,7 +51,7 @@ fn within(what: &str, x: Option<f64>, lo: f64, hi: f64) {
 #[test]
 fn afr34zg_is_rarely_flagged() {
     for (tracker, nis_dof, sigma_m, in_band_pct) in [
-        ("hybrid", (0.8, 1.2), (0.9, 1.6), (80.0, 92.0)),
+        ("hybrid", (0.75, 1.1), (0.9, 1.6), (79.0, 87.0)),
         ("kalman-cv", (0.01, 0.08), (6.0, 9.0), (0.0, 15.0)),
         ("imm", (0.4, 0.8), (1.0, 3.0), (25.0, 55.0)),
     ] {
@@ -150,7 +151,7 @@ fn lax_nacp10_taken_literally_is_overconfident() {
 
 /// AFR34ZG's positions have a heavier tail about their prediction than a Gaussian
 /// (`track::tails`): read under a Student-t of the aircraft's own tail index, with the
-/// filter's covariance, the hybrid's windowed NIS is in band on 86 % of its steady updates
+/// filter's covariance, the hybrid's windowed NIS is in band on 83 % of its steady updates
 /// where the Gaussian reading gives 78 %; the track and its covariance are the same, update
 /// for update.
 #[test]
@@ -187,7 +188,8 @@ fn afr34zg_position_tails_change_the_claim_not_the_track() {
         (72.0..=82.0).contains(&gaussian_in_band),
         "{gaussian_in_band}"
     );
-    assert!(t_in_band > gaussian_in_band + 5.0, "{t_in_band}");
+    assert!((80.0..=86.0).contains(&t_in_band), "{t_in_band}");
+    assert!(t_in_band > gaussian_in_band + 3.0, "{t_in_band}");
 }
 
 /// AFR34ZG's velocity reports are about a second older than its positions

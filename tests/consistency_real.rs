@@ -20,7 +20,7 @@
 //!   (`track::process_noise`: 48 % with the configured q_h, its velocity claim twice the
 //!   error) and a velocity report's term is its bin's randomised quantile residual
 //!   (`track::quantised`; 26 % with the Gaussian NIS of the rounded value, 17 % before the
-//!   steady-flight process noise), 39 % for the IMM (36 %), 25 % for the hybrid's LAX
+//!   steady-flight process noise), 57 % for the IMM (39 % read as Gaussian), 25 % for the hybrid's LAX
 //!   NACp 10 aircraft (19 % read as Gaussian), where the same statistic is inside it on 93-94 % of the updates on
 //!   the simulator's white noise (`tests/tracker_bench.rs`): the statistic is calibrated,
 //!   these innovations are not Gaussian white noise. What is left on AFR34ZG is mostly
@@ -53,7 +53,7 @@ fn afr34zg_is_rarely_flagged() {
     for (tracker, nis_dof, sigma_m, in_band_pct) in [
         ("hybrid", (0.75, 1.1), (0.9, 1.6), (79.0, 87.0)),
         ("kalman-cv", (0.01, 0.08), (6.0, 9.0), (0.0, 15.0)),
-        ("imm", (0.4, 0.8), (1.0, 3.0), (25.0, 55.0)),
+        ("imm", (0.45, 0.85), (1.0, 3.0), (48.0, 65.0)),
     ] {
         let g = groups("afr34zg-cdg-tls.jsonl", 1000.0, tracker);
         let all = &g["all"];
@@ -152,15 +152,15 @@ fn lax_nacp10_taken_literally_is_overconfident() {
 /// AFR34ZG's positions have a heavier tail about their prediction than a Gaussian
 /// (`track::tails`): read under a Student-t of the aircraft's own tail index, with the
 /// filter's covariance, the hybrid's windowed NIS is in band on 83 % of its steady updates
-/// where the Gaussian reading gives 78 %; the track and its covariance are the same, update
-/// for update.
+/// where the Gaussian reading gives 78 %, the IMM's on 57 % where it gives 39 %; the track
+/// and its covariance are the same, update for update.
 #[test]
 fn afr34zg_position_tails_change_the_claim_not_the_track() {
     let frames = afr34zg_frames();
-    let run = |tails: bool| {
+    let run = |tracker: &str, tails: bool| {
         let mut config = Config::default_config().unwrap();
         config.tracker.hybrid.learn_position_tails = tails;
-        let mut p = adsb_tracker::eval::bench::sync_pipeline(&config, "hybrid");
+        let mut p = adsb_tracker::eval::bench::sync_pipeline(&config, tracker);
         let states: Vec<_> = frames
             .iter()
             .filter_map(|f| p.push(f)?.state)
@@ -176,20 +176,25 @@ fn afr34zg_position_tails_change_the_claim_not_the_track() {
                 )
             })
             .collect();
-        let g = consistency::measure(&frames, &config, "hybrid");
+        let g = consistency::measure(&frames, &config, tracker);
         (states, g["all"].nis_in_band_pct().unwrap_or(f64::NAN))
     };
-    let (gaussian, gaussian_in_band) = run(false);
-    let (t, t_in_band) = run(true);
-    assert_eq!(gaussian.len(), t.len());
-    assert!(gaussian == t, "an estimate moved");
-    eprintln!("NIS in band: Gaussian {gaussian_in_band:.1} %, Student-t {t_in_band:.1} %");
-    assert!(
-        (72.0..=82.0).contains(&gaussian_in_band),
-        "{gaussian_in_band}"
-    );
-    assert!((80.0..=86.0).contains(&t_in_band), "{t_in_band}");
-    assert!(t_in_band > gaussian_in_band + 3.0, "{t_in_band}");
+    // (tracker, band read as Gaussian, band read as t.)
+    for (tracker, gaussian_band, t_band) in [
+        ("hybrid", 72.0..=82.0, 80.0..=86.0),
+        ("imm", 34.0..=45.0, 50.0..=63.0),
+    ] {
+        let (gaussian, gaussian_in_band) = run(tracker, false);
+        let (t, t_in_band) = run(tracker, true);
+        assert_eq!(gaussian.len(), t.len(), "{tracker}");
+        assert!(gaussian == t, "{tracker}: an estimate moved");
+        eprintln!(
+            "{tracker} NIS in band: Gaussian {gaussian_in_band:.1} %, Student-t {t_in_band:.1} %"
+        );
+        assert!(gaussian_band.contains(&gaussian_in_band), "{tracker}");
+        assert!(t_band.contains(&t_in_band), "{tracker}");
+        assert!(t_in_band > gaussian_in_band + 3.0, "{tracker}");
+    }
 }
 
 /// AFR34ZG's velocity reports are about a second older than its positions

@@ -189,9 +189,10 @@ pub struct HybridConfig {
     /// (`track::process_noise`), down to `steady_q_min_scale` times `steady_q_horizontal`.
     pub learn_steady_q: bool,
     pub steady_q_min_scale: f64,
-    /// Read a position report's term of the hybrid's windowed NIS under a Student-t claim
-    /// whose covariance is the filter's and whose tail index is learned per aircraft
-    /// (`track::tails`); false: the Gaussian NIS. The estimate is the same either way.
+    /// Read a position report's term of the windowed NIS of `hybrid` and `imm` under a
+    /// Student-t claim whose covariance is the filter's and whose tail index is learned per
+    /// aircraft (`track::tails`); false: the Gaussian NIS. The estimate is the same either
+    /// way.
     pub learn_position_tails: bool,
     /// Bounds of the learned factor on the declared covariance.
     pub noise_scale_limits: [f64; 2],
@@ -495,6 +496,10 @@ impl TrackerConfig {
         p.noise = self.noise_params()?;
         p.learn_velocity_lag = self.hybrid.learn_velocity_lag;
         p.outliers = self.outlier_params()?;
+        p.tails = TailParams {
+            enabled: self.hybrid.learn_position_tails,
+            ..TailParams::default()
+        };
         Ok(p)
     }
 

@@ -233,32 +233,6 @@ impl HybridParams {
     }
 }
 
-/// A position report's innovation along the predicted track, over its predicted standard
-/// deviation there ([`super::tails`]): aᵀε / √(aᵀ S a), with a the horizontal direction of
-/// the predicted velocity and S = P⁻ + R over the position; NaN when the aircraft barely
-/// moves (no track direction) or S is not positive there.
-fn along_track_z(
-    pred: &super::divergence::Prediction<6>,
-    r: &Matrix3<f64>,
-    z: &Vector3<f64>,
-) -> f64 {
-    let pos = kalman::rows::<3, _>(&pred.x, 0);
-    let vel = kalman::rows::<3, _>(&pred.x, 3);
-    let up = local_up(&pos);
-    let v_h = vel - up * vel.dot(&up);
-    let speed = v_h.norm();
-    if speed.is_nan() || speed <= 1.0 {
-        return f64::NAN;
-    }
-    let a = v_h / speed;
-    let s = pred.fpf.fixed_view::<3, 3>(0, 0) + pred.q.fixed_view::<3, 3>(0, 0) + r;
-    let var = a.dot(&(s * a));
-    if var.is_nan() || var <= 0.0 {
-        return f64::NAN;
-    }
-    a.dot(&(z - pos)) / var.sqrt()
-}
-
 /// A velocity given in the track frame's axes, turned into the east-north-up axes at `pos_m`
 /// (a position in that frame), for the gate's tests.
 ///
@@ -510,8 +484,10 @@ impl HybridTracker {
                 let published = if let Observation::Position(o) = obs {
                     let term = self.tails.nis(g.nis_horizontal, &self.params.tails);
                     if self.params.tails.enabled {
-                        self.tails
-                            .learn(along_track_z(&pred, &o.cov, &o.value), &self.params.tails);
+                        self.tails.learn(
+                            super::tails::along_track_z(&pred, &o.cov, &o.value),
+                            &self.params.tails,
+                        );
                     }
                     term
                 } else {

@@ -33,6 +33,7 @@ use super::models::{
 use super::noise::{local_up, BlockStat, NoiseLearner, NoiseParams};
 use super::outlier::{OutlierGate, OutlierParams};
 use super::quantised::OnGrid;
+use super::tails::{PositionTails, TailParams};
 use super::{
     Estimate, FlightMode, Lateral, Measurement, Observed, SpeedTrend, TrackError, Tracker,
     TurnDirection, VerticalTrend,
@@ -350,6 +351,8 @@ struct ModeOutcome {
     blocks: [BlockStat; 2],
     /// Pⱼ(k|k−1) − Pⱼ(k|k) over the velocity block.
     correction: Matrix3<f64>,
+    /// The position report's along-track z when [`ModeInput::along`], else NaN.
+    along_z: f64,
 }
 
 /// [`mode_step`] with the state count of `model`'s kept states.
@@ -420,6 +423,9 @@ struct ModeInput<'a> {
     previous_run: u32,
     /// [`ImmParams::velocity_lag_s`].
     velocity_lag_s: f64,
+    /// Form the report's along-track z ([`super::tails::along_track_z`]): the CV mode's,
+    /// on a position report.
+    along: bool,
 }
 
 /// One mode's mixing, prediction and guarded update on the leading K states of its
@@ -489,6 +495,12 @@ fn guarded_mode<const K: usize>(
                 blocks: g.blocks,
                 correction: pred.covariance_block3(g.adapt, VEL)
                     - kalman::block::<3, 3, K, K>(&p, VEL, VEL),
+                along_z: match input.obs {
+                    Observation::Position(o) if input.along => {
+                        super::tails::along_track_z(pred, &o.cov, &o.value)
+                    }
+                    _ => f64::NAN,
+                },
             })
         }
         Err(e) => {
@@ -546,6 +558,9 @@ pub struct Imm {
     published_nis: f64,
     /// The CV model's innovation blocks at the last step, for [`super::noise`].
     cv_blocks: [BlockStat; 2],
+    /// The CV model's along-track z of a position report at the last step, for
+    /// [`super::tails`] (NaN for any other report).
+    cv_along_z: f64,
     /// The modes of the current model set ([`Imm::set_active`]): the enabled ones unless a
     /// caller narrows them.
     active: [bool; N_MODES],
@@ -568,6 +583,7 @@ impl Imm {
             nis: [f64::NAN; N_MODES],
             published_nis: f64::NAN,
             cv_blocks: [BlockStat::default(); 2],
+            cv_along_z: f64::NAN,
             active: params.enabled,
             velocity_lag_s: params.velocity_lag_s,
         };
@@ -745,6 +761,12 @@ impl Imm {
         &self.cv_blocks
     }
 
+    /// The CV model's along-track z of the last step's position report
+    /// ([`super::tails::along_track_z`]); NaN for any other report.
+    pub fn cv_along_z(&self) -> f64 {
+        self.cv_along_z
+    }
+
     /// Consecutive divergence events of `mode`'s filter up to the last step.
     pub fn divergence_run(&self, mode: ImmMode) -> u32 {
         self.divergence_runs.get(mode.index()).copied().unwrap_or(0)
@@ -883,6 +905,7 @@ impl Imm {
         // published (kept as the loop goes, not one per mode).
         let mut best_grid: Option<(usize, f64, OnGrid)> = None;
         let mut cv_blocks = [BlockStat::default(); 2];
+        let mut cv_along_z = f64::NAN;
         let mut first_error = None;
         let mut any_ok = false;
         let divergence = &self.params.divergence;
@@ -904,6 +927,7 @@ impl Imm {
                 divergence,
                 previous_run: self.divergence_runs[j],
                 velocity_lag_s: self.velocity_lag_s,
+                along: j == ImmMode::Cv.index() && matches!(obs, Observation::Position(_)),
             };
             let outcome = mode_step_of(&self.models[j], &input, x_out, p_out);
             match outcome {
@@ -913,6 +937,7 @@ impl Imm {
                     nis[j] = o.nis;
                     if j == ImmMode::Cv.index() {
                         cv_blocks = o.blocks;
+                        cv_along_z = o.along_z;
                     }
                     corrections[j] = o.correction;
                     if o.log_likelihood.is_finite() {
@@ -937,6 +962,7 @@ impl Imm {
         // Normalised below; no finite likelihood keeps the predicted probabilities.
         let mu = relative_weights(&log_post).unwrap_or(c_bar);
         self.cv_blocks = cv_blocks;
+        self.cv_along_z = cv_along_z;
         let states = self.states_mut();
         states.x = x_new;
         states.p = p_new;
@@ -1300,6 +1326,10 @@ pub struct ImmTrackerParams {
     /// velocity report, within 3 s, fitted CV: the velocity reports vouch for a straight
     /// flight, as the hybrid's gate does for its CV filter. Default on.
     pub outliers: OutlierParams,
+    /// A position report's term of the windowed NIS read under a Student-t claim of the
+    /// aircraft's tail index ([`super::tails`]), learned from the CV model's along-track
+    /// innovation while CV holds at least [`LEARN_CV_PROBABILITY`]. Default on.
+    pub tails: TailParams,
 }
 
 impl Default for ImmTrackerParams {
@@ -1311,6 +1341,7 @@ impl Default for ImmTrackerParams {
             noise: NoiseParams::default(),
             learn_velocity_lag: true,
             outliers: OutlierParams::default(),
+            tails: TailParams::default(),
         }
     }
 }
@@ -1367,6 +1398,8 @@ pub struct ImmTracker {
     lag: Option<Box<super::lag::VelocityLag>>,
     /// Position reports set aside ([`super::outlier`]), kept across restarts.
     outliers: OutlierGate,
+    /// The tail index of its position innovations ([`super::tails`]), kept across restarts.
+    tails: PositionTails,
     /// Feed time of the last velocity report, s, and whether the CV model's innovation on
     /// it was within [`VELOCITY_FITS_CV_NIS`]: the IMM's word for "the velocity reports
     /// show a straight flight", which the hybrid takes from its gate.
@@ -1390,6 +1423,7 @@ impl ImmTracker {
             noise: NoiseLearner::default(),
             lag: None,
             outliers: OutlierGate::default(),
+            tails: PositionTails::default(),
             last_velocity: None,
         }
     }
@@ -1471,9 +1505,11 @@ impl Tracker for ImmTracker {
         let noise = self.noise;
         let outliers = self.outliers;
         let lag = super::lag::kept_over_restart(self.lag.take());
+        let tails = self.tails;
         *self = Self::new(self.params);
         self.noise = noise;
         self.outliers = outliers;
+        self.tails = tails;
         self.lag = lag;
     }
 
@@ -1551,8 +1587,17 @@ impl Tracker for ImmTracker {
                     }
                 }
                 self.init.advance(m.t_s);
+                // A position's term under the aircraft's tail index, read before it learns.
+                let published = if position_only {
+                    self.tails.nis(self.imm.published_nis(), &self.params.tails)
+                } else {
+                    self.imm.published_nis()
+                };
+                if steady && position_only {
+                    self.tails.learn(self.imm.cv_along_z(), &self.params.tails);
+                }
                 self.nis.push(
-                    self.imm.published_nis(),
+                    published,
                     super::nis::horizontal_dof(m.position.as_ref(), m.velocity.as_ref()),
                 );
                 Ok(())

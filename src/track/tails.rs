@@ -40,6 +40,10 @@
 //! innovations are model error, and the velocity reports' terms are their bins' quantile
 //! residuals already.
 
+use super::divergence::Prediction;
+use super::noise::local_up;
+use nalgebra::{Matrix3, Vector3};
+
 /// Tuning of [`PositionTails`].
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct TailParams {
@@ -152,6 +156,36 @@ pub fn t_nis(d2: f64, nu: f64) -> f64 {
     } else {
         d2
     }
+}
+
+/// A position report's innovation along the predicted track, over its predicted standard
+/// deviation there: z = aᵀε / √(aᵀ S a), with a the horizontal direction of the predicted
+/// velocity, S = P⁻ + R over the position, `r` the report's covariance and `z_m` its value
+/// (the state's position and velocity are its leading six). NaN when the aircraft barely
+/// moves (no track direction) or S is not positive there.
+pub fn along_track_z<const K: usize>(
+    pred: &Prediction<K>,
+    r: &Matrix3<f64>,
+    z_m: &Vector3<f64>,
+) -> f64 {
+    if K < 6 {
+        return f64::NAN;
+    }
+    let pos: Vector3<f64> = pred.x.fixed_rows::<3>(0).into_owned();
+    let vel: Vector3<f64> = pred.x.fixed_rows::<3>(3).into_owned();
+    let up = local_up(&pos);
+    let v_h = vel - up * vel.dot(&up);
+    let speed = v_h.norm();
+    if speed.is_nan() || speed <= 1.0 {
+        return f64::NAN;
+    }
+    let a = v_h / speed;
+    let s = pred.fpf.fixed_view::<3, 3>(0, 0) + pred.q.fixed_view::<3, 3>(0, 0) + r;
+    let var = a.dot(&(s * a));
+    if var.is_nan() || var <= 0.0 {
+        return f64::NAN;
+    }
+    a.dot(&(z_m - pos)) / var.sqrt()
 }
 
 /// The standard normal's 75th and 95th percentiles.

@@ -1587,8 +1587,10 @@ impl Tracker for ImmTracker {
                     }
                 }
                 self.init.advance(m.t_s);
-                // A position's term under the aircraft's tail index, read before it learns.
-                let published = if position_only {
+                // A position's term under the aircraft's tail index, read before it learns,
+                // where CV is the published mode (as the hybrid's CV filter: a manoeuvre's
+                // model error reads as what it is).
+                let published = if position_only && self.imm.most_probable() == ImmMode::Cv {
                     self.tails.nis(self.imm.published_nis(), &self.params.tails)
                 } else {
                     self.imm.published_nis()

@@ -36,9 +36,11 @@
 //! Gaussian innovations keep a ν of ten or more (∞ on 95 % of paper002's reports), which
 //! leaves their terms within a few % of d².
 //!
-//! Only the hybrid's CV filter learns and uses it, on its position reports: a manoeuvre's
-//! innovations are model error, and the velocity reports' terms are their bins' quantile
-//! residuals already.
+//! The hybrid's CV filter learns and uses it on its position reports, and the plain `imm`
+//! where CV is its published mode (learning from its CV model's innovation while CV holds
+//! 0.9, as it learns the noise): a manoeuvre's innovations are model error, which should
+//! read as what it is, and the velocity reports' terms are their bins' quantile residuals
+//! already.
 
 use super::divergence::Prediction;
 use super::noise::local_up;

@@ -1706,6 +1706,7 @@ mod tests {
         use rand::{Rng, SeedableRng};
         let mut rng = StdRng::seed_from_u64(23);
         let mut suppressed = 0;
+        let mut along = 0u32;
         let mut errors = 0;
         for case in 0..3000 {
             // Mode states as an IMM holds them: the reset tails at (0, σ_r²) for some modes,
@@ -1778,6 +1779,7 @@ mod tests {
                     divergence: &divergence,
                     previous_run: run,
                     velocity_lag_s: 0.0,
+                    along: true,
                 };
                 let reduced = mode_step_of(model, &input, &mut x_r, &mut p_r);
                 let full = mode_step_full(model.as_dyn(), &input, &mut x_f, &mut p_f);
@@ -1793,6 +1795,18 @@ mod tests {
                         );
                         assert!(r.nis == f.nis || (r.nis.is_nan() && f.nis.is_nan()));
                         assert_eq!(r.log_likelihood, f.log_likelihood);
+                        // The along-track z of a position report, on the same prediction.
+                        let is_position = matches!(obs, Observation::Position(_));
+                        assert_eq!(r.along_z.is_nan(), f.along_z.is_nan() || !is_position);
+                        assert!(
+                            !is_position
+                                || f.along_z.is_nan()
+                                || (r.along_z - f.along_z).abs() <= 1e-9 * f.along_z.abs().max(1.0),
+                            "case {case}: {} vs {}",
+                            r.along_z,
+                            f.along_z
+                        );
+                        along += u32::from(r.along_z.is_finite());
                         suppressed += u32::from(r.run >= divergence.confirm);
                     }
                     (Err(r), Err(f)) => {
@@ -1803,8 +1817,9 @@ mod tests {
                 }
             }
         }
-        // The suppressed path was exercised.
+        // The suppressed path was exercised, and the along-track z formed.
         assert!(suppressed > 100, "{suppressed} suppressed, {errors} errors");
+        assert!(along > 100, "{along} along-track z");
     }
 
     /// The triangular in-place spread sum is bit for bit the full matrix sum it replaced

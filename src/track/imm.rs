@@ -559,8 +559,11 @@ pub struct Imm {
     /// The CV model's innovation blocks at the last step, for [`super::noise`].
     cv_blocks: [BlockStat; 2],
     /// The CV model's along-track z of a position report at the last step, for
-    /// [`super::tails`] (NaN for any other report).
+    /// [`super::tails`] (NaN for any other report, or when not [`Imm::form_along_z`]).
     cv_along_z: f64,
+    /// Form [`Imm::cv_along_z`] at all ([`Imm::form_along_z`]): the plain `imm`'s tail
+    /// learner reads it, the hybrid's IMM branch does not.
+    along_wanted: bool,
     /// The modes of the current model set ([`Imm::set_active`]): the enabled ones unless a
     /// caller narrows them.
     active: [bool; N_MODES],
@@ -584,6 +587,7 @@ impl Imm {
             published_nis: f64::NAN,
             cv_blocks: [BlockStat::default(); 2],
             cv_along_z: f64::NAN,
+            along_wanted: false,
             active: params.enabled,
             velocity_lag_s: params.velocity_lag_s,
         };
@@ -594,6 +598,11 @@ impl Imm {
     /// The tuning in use.
     pub fn params(&self) -> &ImmParams {
         &self.params
+    }
+
+    /// Form the CV model's along-track z of each position report ([`Imm::cv_along_z`]).
+    pub fn form_along_z(&mut self, wanted: bool) {
+        self.along_wanted = wanted;
     }
 
     /// The age of this aircraft's velocity reports, s, learned from them
@@ -927,7 +936,9 @@ impl Imm {
                 divergence,
                 previous_run: self.divergence_runs[j],
                 velocity_lag_s: self.velocity_lag_s,
-                along: j == ImmMode::Cv.index() && matches!(obs, Observation::Position(_)),
+                along: self.along_wanted
+                    && j == ImmMode::Cv.index()
+                    && matches!(obs, Observation::Position(_)),
             };
             let outcome = mode_step_of(&self.models[j], &input, x_out, p_out);
             match outcome {
@@ -1415,9 +1426,11 @@ impl Default for ImmTracker {
 impl ImmTracker {
     /// A tracker with no track yet.
     pub fn new(params: ImmTrackerParams) -> Self {
+        let mut imm = Imm::new(params.imm);
+        imm.form_along_z(params.tails.enabled);
         Self {
             params,
-            imm: Imm::new(params.imm),
+            imm,
             init: Initiator::new(params.init, &params.imm.models.cv),
             nis: super::nis::NisWindow::default(),
             noise: NoiseLearner::default(),

@@ -496,10 +496,7 @@ impl TrackerConfig {
         p.noise = self.noise_params()?;
         p.learn_velocity_lag = self.hybrid.learn_velocity_lag;
         p.outliers = self.outlier_params()?;
-        p.tails = TailParams {
-            enabled: self.hybrid.learn_position_tails,
-            ..TailParams::default()
-        };
+        p.tails = self.tail_params();
         Ok(p)
     }
 
@@ -564,11 +561,17 @@ impl TrackerConfig {
             )?,
             ..SteadyQParams::default()
         };
-        p.tails = TailParams {
-            enabled: h.learn_position_tails,
-            ..TailParams::default()
-        };
+        p.tails = self.tail_params();
         Ok(p)
+    }
+
+    /// The position terms' tail index of `hybrid` and `imm`
+    /// (`tracker.hybrid.learn_position_tails`).
+    fn tail_params(&self) -> TailParams {
+        TailParams {
+            enabled: self.hybrid.learn_position_tails,
+            ..TailParams::default()
+        }
     }
 
     /// The outlier test of `hybrid` and `imm` (`[tracker.hybrid] outlier_*` keys).

@@ -127,8 +127,8 @@ pub struct TrackState {
     /// measured horizontal components, east and north of position and velocity (null when
     /// the tracker keeps none). χ²(`nis_dof`) for a consistent filter (`track::nis`; the
     /// quantised barometric altitude and rate are left out; a ground velocity's 1-kt
-    /// rounding is read through its bin, `track::quantised`; the hybrid reads a position
-    /// under the aircraft's learned tail index, `track::tails`).
+    /// rounding is read through its bin, `track::quantised`; `hybrid` and `imm` read a
+    /// position in steady flight under the aircraft's learned tail index, `track::tails`).
     pub nis: Option<f64>,
     /// Degrees of freedom of `nis`: the measured horizontal components in its window.
     pub nis_dof: Option<u32>,

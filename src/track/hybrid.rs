@@ -482,7 +482,7 @@ impl HybridTracker {
                 // The report's term of the windowed NIS, its quantiles taken once; a
                 // position's read under the aircraft's tail index before it learns from it.
                 let published = if let Observation::Position(o) = obs {
-                    let term = self.tails.nis(g.nis_horizontal, &self.params.tails);
+                    let term = self.tails.nis(g.nis_horizontal);
                     if self.params.tails.enabled {
                         self.tails.learn(
                             super::tails::along_track_z(&pred, &o.cov, &o.value),

@@ -423,8 +423,8 @@ struct ModeInput<'a> {
     previous_run: u32,
     /// [`ImmParams::velocity_lag_s`].
     velocity_lag_s: f64,
-    /// Form the report's along-track z ([`super::tails::along_track_z`]): the CV mode's,
-    /// on a position report.
+    /// Form the report's along-track z ([`super::tails::along_track_z`]) if it is a position
+    /// report: the CV mode's.
     along: bool,
 }
 
@@ -936,9 +936,7 @@ impl Imm {
                 divergence,
                 previous_run: self.divergence_runs[j],
                 velocity_lag_s: self.velocity_lag_s,
-                along: self.along_wanted
-                    && j == ImmMode::Cv.index()
-                    && matches!(obs, Observation::Position(_)),
+                along: self.along_wanted && j == ImmMode::Cv.index(),
             };
             let outcome = mode_step_of(&self.models[j], &input, x_out, p_out);
             match outcome {
@@ -1604,7 +1602,7 @@ impl Tracker for ImmTracker {
                 // where CV is the published mode (as the hybrid's CV filter: a manoeuvre's
                 // model error reads as what it is).
                 let published = if position_only && self.imm.most_probable() == ImmMode::Cv {
-                    self.tails.nis(self.imm.published_nis(), &self.params.tails)
+                    self.tails.nis(self.imm.published_nis())
                 } else {
                     self.imm.published_nis()
                 };

@@ -120,13 +120,10 @@ impl PositionTails {
     }
 
     /// The term of the windowed NIS of a position report whose horizontal Gaussian NIS is
-    /// `d2` (2 degrees of freedom), under the learned ν ([`t_nis`]).
-    pub fn nis(&self, d2: f64, params: &TailParams) -> f64 {
-        if params.enabled {
-            t_nis(d2, self.nu)
-        } else {
-            d2
-        }
+    /// `d2` (2 degrees of freedom), under the learned ν ([`t_nis`]): `d2` itself while ν is
+    /// ∞, which it stays when learning is not enabled.
+    pub fn nis(&self, d2: f64) -> f64 {
+        t_nis(d2, self.nu)
     }
 
     /// Learns from one position report's innovation along the track, standardised by its
@@ -289,7 +286,7 @@ mod tests {
         let (mut sum, mut above, mut count) = (0.0, 0usize, 0usize);
         for k in 0..n {
             let (d2, z) = draw(&mut rng, nu, along, across);
-            let term = tails.nis(d2, &params);
+            let term = tails.nis(d2);
             tails.learn(z, &params);
             if k >= n / 2 {
                 sum += term;
@@ -416,6 +413,6 @@ mod tests {
             tails.learn(draw(&mut rng, 3.0, 1.0, 1.0).1, &off);
         }
         assert_eq!(tails, PositionTails::default());
-        assert_eq!(tails.nis(9.0, &off), 9.0);
+        assert_eq!(tails.nis(9.0), 9.0);
     }
 }

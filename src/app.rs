@@ -112,6 +112,7 @@ pub fn serve_source(cfg: &mut Config) -> Result<Source, DaemonError> {
         speed: cfg.replay.speed,
         loop_: cfg.replay.loop_,
         nominal_rate_hz,
+        fit_untimed_clock: cfg.decode.fit_untimed_clock,
         loop_gap_s: cfg.tracker.retire_after_s + 1.0,
         progress: false,
     }))

@@ -280,10 +280,27 @@ fn evaluate_recordings(
     let mut lags = String::new();
     for path in recordings.split(',').map(str::trim) {
         let path = PathBuf::from(path);
-        let frames = consistency::read_frames_at(&path, None, nominal_rate_hz)?;
+        let (frames, pace) = consistency::read_recording(
+            &path,
+            None,
+            nominal_rate_hz,
+            cfg.decode.fit_untimed_clock,
+        )?;
         let name = path
             .file_name()
             .map_or("recording".to_string(), |s| s.to_string_lossy().to_string());
+        if let Some(p) = pace {
+            eprintln!(
+                "{name}: clock learned from {} straight, steady intervals ({} left out): \
+                 real/nominal rate {:.3} overall, {:.3}..{:.3}, residual rms {:.2} sigma",
+                p.intervals - p.rejected,
+                p.rejected,
+                p.mean_rate,
+                p.min_rate,
+                p.max_rate,
+                p.rms_normalised_residual
+            );
+        }
         lags.push_str(&adsb_tracker::eval::latency::markdown_rows(&name, &frames));
         for tracker in trackers.split(',').map(str::trim) {
             if !adsb_tracker::config::ALGORITHMS.contains(&tracker) {
@@ -408,6 +425,7 @@ async fn main() -> Result<()> {
                         speed,
                         loop_: false,
                         nominal_rate_hz: cfg.decode.nominal_rate_hz,
+                        fit_untimed_clock: cfg.decode.fit_untimed_clock,
                         loop_gap_s: 0.0,
                         progress: true,
                     }),

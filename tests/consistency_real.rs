@@ -4,8 +4,10 @@
 //! - `diverging` is paper 000's criterion confirmed on four reports in a row, the point where
 //!   the suppressor acts: on every recording and every declared NACp it is on for under 1 %
 //!   of the steady updates with `hybrid` and `imm`. The plain `kalman-cv`, which takes the
-//!   declared NACp literally and learns nothing, stays flagged on ~45 % of the LAX NACp 10
-//!   updates: its covariance there is a third of what the data show.
+//!   declared NACp literally and learns nothing, is flagged on 3 % of the LAX NACp 10
+//!   updates: on the clock LAX's aircraft show (`feed::pace`), NACp 10 is about their noise,
+//!   NACp 8 and 9 far above it (it was 45 % on the nominal 270 frames/s, which was the
+//!   clock's error, not the declaration's).
 //! - The hybrid and the IMM learn each aircraft's noise (`track::noise`): on AFR34ZG
 //!   (declares nothing, so R starts from NUCp's 38 m per axis) the hybrid's position sigma
 //!   moves from 7 m to about 1.1 m, its windowed NIS per degree of freedom to about 0.9
@@ -20,12 +22,13 @@
 //!   (`track::process_noise`: 48 % with the configured q_h, its velocity claim twice the
 //!   error) and a velocity report's term is its bin's randomised quantile residual
 //!   (`track::quantised`; 26 % with the Gaussian NIS of the rounded value, 17 % before the
-//!   steady-flight process noise), 57 % for the IMM (39 % read as Gaussian), 25 % for the hybrid's LAX
-//!   NACp 10 aircraft (19 % read as Gaussian), where the same statistic is inside it on 93-94 % of the updates on
+//!   steady-flight process noise), 57 % for the IMM (39 % read as Gaussian), 52 % for the hybrid's LAX
+//!   NACp 10 aircraft on their own clock (25 % on the nominal clock), where the same statistic is inside it on 93-94 % of the updates on
 //!   the simulator's white noise (`tests/tracker_bench.rs`): the statistic is calibrated,
 //!   these innovations are not Gaussian white noise. What is left on AFR34ZG is mostly
-//!   positions off in time along the track; on LAX the approximate timing
-//!   (docs/evaluation.md). The Gaussian statistic's limit on rounded velocities:
+//!   positions off in time along the track; on LAX the windows below the band (43 % of
+//!   NACp 10's, 64 % of NACp 9's): the learned noise stays above the aircraft's own, held up
+//!   by the declaration (docs/evaluation.md). The Gaussian statistic's limit on rounded velocities:
 //!   `afr34zg_velocity_reports_repeat_and_bound_the_nis`.
 //!
 //! A change that moves these figures must update them here and in docs/evaluation.md.
@@ -39,8 +42,11 @@ fn groups(file: &str, rate_hz: f64, tracker: &str) -> BTreeMap<String, Group> {
     let path = Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("fixtures")
         .join(file);
-    let frames = consistency::read_frames_at(&path, None, rate_hz).unwrap();
-    consistency::measure(&frames, &Config::default_config().unwrap(), tracker)
+    let cfg = Config::default_config().unwrap();
+    // As `evaluate` reads it: an untimed recording on the clock its aircraft show.
+    let (frames, _) =
+        consistency::read_recording(&path, None, rate_hz, cfg.decode.fit_untimed_clock).unwrap();
+    consistency::measure(&frames, &cfg, tracker)
 }
 
 fn within(what: &str, x: Option<f64>, lo: f64, hi: f64) {
@@ -102,7 +108,7 @@ fn afr34zg_is_rarely_flagged() {
 fn lax_every_nacp_is_rarely_flagged() {
     for tracker in ["hybrid", "imm"] {
         let g = groups("lax-messages.avr.txt", 270.0, tracker);
-        assert_eq!(g["10"].airborne, 32_405);
+        assert_eq!(g["10"].airborne, 32_407);
         for (nacp, group) in &g {
             if group.steady < 30 {
                 continue;
@@ -121,32 +127,36 @@ fn lax_every_nacp_is_rarely_flagged() {
             2.5,
         );
     }
-    // The hybrid's NACp 10 aircraft: horizontal NIS per degree of freedom 1.8 (2.5 with
-    // every position term read as Gaussian, 5.5 without learning the noise).
+    // The hybrid's NACp 10 aircraft: horizontal NIS per degree of freedom 0.67 on the
+    // clock the aircraft show (1.8 on the nominal 270 frames/s, whose rate errors of ±30 %
+    // made positions and velocities disagree by metres per second).
     let g = groups("lax-messages.avr.txt", 270.0, "hybrid");
     within(
         "hybrid NACp 10 NIS/dof",
         g["10"].median_nis_per_dof(),
-        1.4,
-        2.3,
+        0.55,
+        0.8,
     );
 }
 
 #[test]
-fn lax_nacp10_taken_literally_is_overconfident() {
-    // The plain Kalman filter learns nothing: NACp 10's 4 m per axis against LAX's scatter.
+fn lax_declared_accuracy_is_a_bound() {
+    // The plain Kalman filter learns nothing and takes NACp literally. On the clock the
+    // aircraft show, NACp 10's 4 m per axis is about their noise (NIS/dof 0.84; it was 15
+    // on the nominal clock, flagged on 45 % of the steady updates, which was the clock's
+    // doing), while NACp 9 and 8, bounds of 30 m and 93 m, are three to twenty times the
+    // noise in σ: the filter is far too cautious there.
     let g = groups("lax-messages.avr.txt", 270.0, "kalman-cv");
-    let n10 = &g["10"];
+    let dof = |k: &str| g[k].median_nis_per_dof().unwrap();
+    within("NACp 10 NIS/dof", Some(dof("10")), 0.7, 1.0);
+    within("NACp 9 NIS/dof", Some(dof("9")), 0.1, 0.25);
+    within("NACp 8 NIS/dof", Some(dof("8")), 0.02, 0.08);
     within(
         "NACp 10 steady diverging %",
-        n10.steady_diverging_pct(),
-        35.0,
-        55.0,
+        g["10"].steady_diverging_pct(),
+        1.0,
+        6.0,
     );
-    within("NACp 10 NIS/dof", n10.median_nis_per_dof(), 10.0, 20.0);
-    // The less an aircraft claims, the less often it is flagged.
-    let pct = |k: &str| g[k].steady_diverging_pct().unwrap();
-    assert!(pct("10") > pct("9") && pct("9") > pct("8"), "{g:?}");
 }
 
 /// AFR34ZG's positions have a heavier tail about their prediction than a Gaussian

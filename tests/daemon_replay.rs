@@ -227,6 +227,7 @@ async fn replay_to_end(path: &std::path::Path) -> adsb_tracker::daemon::RunSumma
             speed: 0.0,
             loop_: false,
             nominal_rate_hz: 1000.0,
+            fit_untimed_clock: true,
             loop_gap_s: 0.0,
             progress: false,
         }),

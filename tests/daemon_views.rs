@@ -89,6 +89,7 @@ async fn looped(name: &str, passes: u64) -> StatsSnapshot {
         speed: 0.0,
         loop_: true,
         nominal_rate_hz: config.decode.nominal_rate_hz,
+        fit_untimed_clock: config.decode.fit_untimed_clock,
         loop_gap_s: config.tracker.retire_after_s + 1.0,
         progress: false,
     };

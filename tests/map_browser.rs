@@ -136,6 +136,7 @@ async fn the_map_shows_the_replayed_tracks_in_chromium() {
         speed: SPEED,
         loop_: true,
         nominal_rate_hz: LAX_RATE_HZ,
+        fit_untimed_clock: true,
         loop_gap_s: config.tracker.retire_after_s + 1.0,
         progress: false,
     });

@@ -226,6 +226,7 @@ async fn cat062_records_decoded_by_tshark_match_the_tracks() {
         speed: 2000.0,
         loop_: false,
         nominal_rate_hz: config.decode.nominal_rate_hz,
+        fit_untimed_clock: config.decode.fit_untimed_clock,
         loop_gap_s: 0.0,
         progress: false,
     });

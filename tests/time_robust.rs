@@ -266,6 +266,7 @@ async fn replay_with_one_frame_half_an_hour_off_matches_the_clean_replay() {
                 speed: 0.0,
                 loop_: false,
                 nominal_rate_hz: 1000.0,
+                fit_untimed_clock: true,
                 loop_gap_s: 0.0,
                 progress: false,
             }),

@@ -252,6 +252,9 @@ pub struct DecodeConfig {
     pub recent_address_s: f64,
     /// Feed time given to text frames without a timestamp: frames per second of feed time.
     pub nominal_rate_hz: f64,
+    /// Learn the real clock of a recording whose frames carry no time from its aircraft
+    /// (`feed::pace`) before replaying it.
+    pub fit_untimed_clock: bool,
     /// A position or velocity report equal to the aircraft's last one of its kind within
     /// this many seconds of feed time is one transmission heard twice (two receivers merged
     /// into one feed), not given to the tracker again; 0 keeps every copy. Below 0.4 s, the

@@ -5,6 +5,7 @@
 //! starts `loop_gap_s` after the previous one ended (longer than the retirement delay, so every
 //! aircraft is retired and started afresh rather than seen to jump back).
 
+use crate::feed::pace::PaceMap;
 use crate::feed::replay::FileReader;
 use crate::feed::tcp::FrameBatch;
 use crate::feed::{Format, RawFrame};
@@ -105,6 +106,9 @@ pub struct Replay {
     pub speed: f64,
     pub loop_: bool,
     pub nominal_rate_hz: f64,
+    /// A recording whose frames all lack a time is read once first to learn its real clock
+    /// (`feed::pace`), and replayed on it.
+    pub fit_untimed_clock: bool,
     /// Feed-time gap inserted between loops, s.
     pub loop_gap_s: f64,
     /// Print a progress line on stderr.
@@ -144,13 +148,31 @@ pub fn run_replay(
         ReplayData::File(p) => p.display().to_string(),
         ReplayData::Embedded { name, .. } => name.to_string(),
     });
+    let open = || match &replay.data {
+        ReplayData::File(p) => FileReader::open(p, replay.format, replay.nominal_rate_hz),
+        ReplayData::Embedded { bytes, name } => {
+            FileReader::from_bytes(bytes, name, replay.format, replay.nominal_rate_hz)
+        }
+    };
+    let pace = if replay.fit_untimed_clock {
+        let map = PaceMap::fit_reader(open()?)?;
+        if let Some(p) = map.as_ref().map(PaceMap::summary) {
+            tracing::info!(
+                feed = %feed_name,
+                intervals = p.intervals - p.rejected,
+                left_out = p.rejected,
+                mean_rate = p.mean_rate,
+                min_rate = p.min_rate,
+                max_rate = p.max_rate,
+                "untimed recording: real clock learned from its aircraft"
+            );
+        }
+        map
+    } else {
+        None
+    };
     loop {
-        let mut reader = match &replay.data {
-            ReplayData::File(p) => FileReader::open(p, replay.format, replay.nominal_rate_hz)?,
-            ReplayData::Embedded { bytes, name } => {
-                FileReader::from_bytes(bytes, name, replay.format, replay.nominal_rate_hz)?
-            }
-        };
+        let mut reader = open()?;
         let mut first_in_pass: Option<f64> = None;
         let mut last_in_pass = 0.0;
         loop {
@@ -159,6 +181,9 @@ pub fn run_replay(
             }
             frames.clear();
             let more = reader.next_batch(&mut frames)?;
+            if let Some(map) = &pace {
+                map.apply(&mut frames);
+            }
             for f in frames.iter_mut() {
                 first_in_pass.get_or_insert(f.time_s);
                 last_in_pass = f.time_s;

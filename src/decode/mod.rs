@@ -10,6 +10,7 @@ pub mod bits;
 pub mod cpr;
 pub mod crc;
 pub mod inspect;
+pub mod reports;
 
 use crate::feed::RawFrame;
 use serde::Serialize;

@@ -11,6 +11,7 @@ use crate::daemon::pipeline::SyncPipeline;
 use crate::daemon::registry::TrackState;
 use crate::decode::cpr::CprConfig;
 use crate::decode::{DecoderConfig, Icao};
+use crate::feed::pace::{learn_clock, PaceSummary};
 use crate::feed::replay::FileReader;
 use crate::feed::{Format, RawFrame};
 use crate::sim::Scenario;
@@ -103,23 +104,34 @@ pub fn read_frames(path: &Path, format: Option<Format>) -> Result<Vec<RawFrame>,
     read_frames_at(path, format, 1000.0)
 }
 
-/// Reads every frame of a recording, timing untimed frames at `nominal_rate_hz`.
+/// Reads every frame of a recording, timing untimed frames at `nominal_rate_hz` (their
+/// nominal clock: [`read_recording`] learns the real one).
 pub fn read_frames_at(
     path: &Path,
     format: Option<Format>,
     nominal_rate_hz: f64,
 ) -> Result<Vec<RawFrame>, EvalError> {
-    let mut reader = FileReader::open(path, format, nominal_rate_hz)
+    Ok(read_recording(path, format, nominal_rate_hz, false)?.0)
+}
+
+/// Reads every frame of a recording, timing untimed frames at `nominal_rate_hz`; with
+/// `fit_untimed_clock`, a recording with no time of its own is moved to the real clock its
+/// aircraft show ([`crate::feed::pace`]), whose fit is returned.
+pub fn read_recording(
+    path: &Path,
+    format: Option<Format>,
+    nominal_rate_hz: f64,
+    fit_untimed_clock: bool,
+) -> Result<(Vec<RawFrame>, Option<PaceSummary>), EvalError> {
+    let (mut frames, stats) = FileReader::open(path, format, nominal_rate_hz)
+        .and_then(FileReader::read_all)
         .map_err(|e| EvalError::Other(e.to_string()))?;
-    let mut all = Vec::new();
-    let mut batch = Vec::new();
-    while reader
-        .next_batch(&mut batch)
-        .map_err(|e| EvalError::Other(e.to_string()))?
-    {
-        all.extend_from_slice(&batch);
-    }
-    Ok(all)
+    let pace = if fit_untimed_clock {
+        learn_clock(&mut frames, &stats)
+    } else {
+        None
+    };
+    Ok((frames, pace))
 }
 
 /// Scores a trace against truth, aircraft by aircraft.

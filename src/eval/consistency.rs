@@ -40,7 +40,7 @@ pub const STEADY_AFTER_S: f64 = 30.0;
 /// four ADS-B velocity intervals, after which a held value says little.
 pub const HELD_MAX_GAP_S: f64 = 2.0;
 
-pub use super::bench::read_frames_at;
+pub use super::bench::{read_frames_at, read_recording};
 
 /// Counts and samples of one group (a NACp, or all).
 #[derive(Clone, Debug, Default, Serialize)]
@@ -53,6 +53,9 @@ pub struct Group {
     /// Steady updates that carried a windowed NIS, and those inside its band.
     pub steady_nis: u64,
     pub steady_nis_in_band: u64,
+    /// Of the rest, those below the band (the filter claims more uncertainty than its
+    /// innovations show); the others are above it.
+    pub steady_nis_below_band: u64,
     /// Steady updates: the windowed NIS over its dof (1 for a consistent filter).
     #[serde(skip)]
     pub nis_per_dof: Vec<f64>,
@@ -95,6 +98,11 @@ impl Group {
     pub fn nis_in_band_pct(&self) -> Option<f64> {
         pct(self.steady_nis_in_band, self.steady_nis)
     }
+
+    /// Percent of the steady updates' windowed NIS below their band.
+    pub fn nis_below_band_pct(&self) -> Option<f64> {
+        pct(self.steady_nis_below_band, self.steady_nis)
+    }
     pub fn median_scatter_m(&self) -> Option<f64> {
         median(&mut self.scatter_m.clone())
     }
@@ -115,6 +123,7 @@ impl Group {
         self.steady_diverging += o.steady_diverging;
         self.steady_nis += o.steady_nis;
         self.steady_nis_in_band += o.steady_nis_in_band;
+        self.steady_nis_below_band += o.steady_nis_below_band;
         self.scatter_m.extend_from_slice(&o.scatter_m);
         self.pos_sigma_m.extend_from_slice(&o.pos_sigma_m);
         self.fix_nees.extend_from_slice(&o.fix_nees);
@@ -201,6 +210,7 @@ pub fn measure(frames: &[RawFrame], config: &Config, tracker: &str) -> BTreeMap<
                 g.steady_nis += 1;
                 let (lo, hi) = chi2_band(f64::from(dof));
                 g.steady_nis_in_band += u64::from((lo..=hi).contains(&nis));
+                g.steady_nis_below_band += u64::from(nis < lo);
                 g.nis_per_dof.push(nis / f64::from(dof));
             }
         }
@@ -291,11 +301,11 @@ pub fn markdown(results: &[RecordingResult]) -> String {
     let mut s = String::new();
     let _ = writeln!(
         s,
-        "| recording | tracker | NACp | airborne updates | diverging % airborne | steady updates | diverging % steady | NIS in 95 % band % (steady) | median NIS/dof (steady) | median pos_sigma_m | median fix-to-track m | velocity reports held % |"
+        "| recording | tracker | NACp | airborne updates | diverging % airborne | steady updates | diverging % steady | NIS in 95 % band % (steady) | below band % | median NIS/dof (steady) | median pos_sigma_m | median fix-to-track m | velocity reports held % |"
     );
     let _ = writeln!(
         s,
-        "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"
+        "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"
     );
     for r in results {
         // "all" first, then the groups in NACp order, "none" last.
@@ -312,7 +322,7 @@ pub fn markdown(results: &[RecordingResult]) -> String {
             }
             let _ = writeln!(
                 s,
-                "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
+                "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
                 r.recording,
                 r.tracker,
                 k,
@@ -321,6 +331,7 @@ pub fn markdown(results: &[RecordingResult]) -> String {
                 g.steady,
                 f(g.steady_diverging_pct(), 1),
                 f(g.nis_in_band_pct(), 1),
+                f(g.nis_below_band_pct(), 1),
                 f(g.median_nis_per_dof(), 2),
                 f(g.median_pos_sigma_m(), 2),
                 f(g.median_scatter_m(), 2),

@@ -23,13 +23,10 @@
 //! about a second (the same bytes two or three squitters running, in turns too), which is
 //! half of it on average.
 
-use crate::daemon::aircraft::{FT_TO_M, KT_TO_MPS};
-use crate::decode::cpr::{CprConfig, CprDecoder, PositionFix};
-use crate::decode::{Decoder, DecoderConfig, Icao, Message};
+pub use crate::decode::reports::{reports, Reports};
 use crate::feed::RawFrame;
 use crate::track::geo::LocalFrame;
 use crate::track::lag::WindowFit;
-use std::collections::BTreeMap;
 
 /// The window, the positions and the velocity change a window must hold: the same as the
 /// tracker's learner.
@@ -47,58 +44,6 @@ pub struct Offset {
     pub spread_s: f64,
     /// Windows that counted.
     pub windows: usize,
-}
-
-/// The reports of one aircraft: positions (t, lat°, lon°, barometric altitude m) and ground
-/// velocities (t, east m/s, north m/s), in feed time order.
-#[derive(Clone, Debug, Default)]
-pub struct Reports {
-    pub positions: Vec<(f64, f64, f64, f64)>,
-    pub velocities: Vec<(f64, f64, f64)>,
-}
-
-/// Gathers every airborne aircraft's reports from `frames`: positions decoded by the daemon's
-/// own CPR decoder (its plausibility checks included), ground velocities as sent.
-pub fn reports(frames: &[RawFrame]) -> BTreeMap<Icao, Reports> {
-    let mut decoder = Decoder::new(DecoderConfig::default());
-    let mut cpr: BTreeMap<Icao, CprDecoder> = BTreeMap::new();
-    let mut out: BTreeMap<Icao, Reports> = BTreeMap::new();
-    for f in frames {
-        let Ok(d) = decoder.decode(f) else { continue };
-        match d.msg {
-            Message::AirbornePosition {
-                cpr: c,
-                alt_ft: Some(alt_ft),
-                ..
-            } => {
-                let fix = cpr
-                    .entry(d.icao)
-                    .or_insert_with(|| CprDecoder::new(CprConfig::default()))
-                    .airborne(d.time_s, c);
-                if let PositionFix::Accepted {
-                    lat_deg, lon_deg, ..
-                } = fix
-                {
-                    let r = out.entry(d.icao).or_default();
-                    r.positions
-                        .push((d.time_s, lat_deg, lon_deg, f64::from(alt_ft) * FT_TO_M));
-                }
-            }
-            Message::Velocity(v) => {
-                if let Some((e_kt, n_kt)) = v.ground_kt {
-                    let r = out.entry(d.icao).or_default();
-                    r.velocities
-                        .push((d.time_s, e_kt * KT_TO_MPS, n_kt * KT_TO_MPS));
-                }
-            }
-            _ => {}
-        }
-    }
-    for r in out.values_mut() {
-        r.positions.sort_by(|a, b| a.0.total_cmp(&b.0));
-        r.velocities.sort_by(|a, b| a.0.total_cmp(&b.0));
-    }
-    out
 }
 
 /// The header of [`markdown_rows`]' table.

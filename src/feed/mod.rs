@@ -7,6 +7,7 @@
 pub mod beast;
 pub mod clock;
 pub mod detect;
+pub mod pace;
 pub mod replay;
 pub mod tcp;
 pub mod text;
@@ -144,6 +145,10 @@ pub struct ParseStats {
     pub bad_timestamps: u64,
     /// Bytes of an incomplete frame left at the end of a stream.
     pub truncated_tail_bytes: u64,
+    /// Frames that carried no time and were paced at `decode.nominal_rate_hz` (plain AVR
+    /// `*hex;`): when they are all of a recording's frames, [`pace`] can learn its real
+    /// clock.
+    pub paced_frames: u64,
 }
 
 /// An incremental frame parser: what every feed format implements.

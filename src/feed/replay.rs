@@ -145,6 +145,16 @@ impl FileReader {
         Ok(true)
     }
 
+    /// Every remaining frame of the file, and the parser's counters at its end.
+    pub fn read_all(mut self) -> Result<(Vec<RawFrame>, ParseStats), FeedError> {
+        let mut all = Vec::new();
+        let mut batch = Vec::new();
+        while self.next_batch(&mut batch)? {
+            all.extend_from_slice(&batch);
+        }
+        Ok((all, self.stats().clone()))
+    }
+
     /// The format being read (given or detected).
     pub fn format(&self) -> Format {
         self.format

@@ -133,6 +133,7 @@ impl TextParser {
                     None => 0.0,
                 };
                 self.untimed_frames += 1;
+                self.stats.paced_frames += 1;
                 self.clock.push_paced(pace_s, frame, out);
             }
             b'@' => {

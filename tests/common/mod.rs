@@ -81,6 +81,7 @@ impl TestDaemon {
             speed: 0.0,
             loop_: false,
             nominal_rate_hz: config.decode.nominal_rate_hz,
+            fit_untimed_clock: config.decode.fit_untimed_clock,
             loop_gap_s: 0.0,
             progress: false,
         });
@@ -297,6 +298,7 @@ pub fn paced(name: &str, config: &Config, speed: f64) -> Source {
         speed,
         loop_: false,
         nominal_rate_hz: config.decode.nominal_rate_hz,
+        fit_untimed_clock: config.decode.fit_untimed_clock,
         loop_gap_s: 0.0,
         progress: false,
     })

@@ -17,7 +17,7 @@ cd "$(dirname "$0")/.."
 
 SECONDS_PER_TARGET="${1:-10}"
 shift || true
-ALL_TARGETS=(feed_beast feed_avr feed_lines decode_cpr pipeline config cluster_pack)
+ALL_TARGETS=(feed_beast feed_avr feed_lines decode_cpr pipeline config cluster_pack pace_fit)
 if [ "$#" -gt 0 ]; then TARGETS=("$@"); else TARGETS=("${ALL_TARGETS[@]}"); fi
 
 # The same flags for the build and every run (otherwise `cargo fuzz run` rebuilds).

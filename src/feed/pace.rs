@@ -709,16 +709,21 @@ mod tests {
         assert_eq!(sum.rejected, 0);
     }
 
-    #[test]
-    fn outliers_are_left_out_and_counted() {
-        let mut obs: Vec<Interval> = (0..100)
+    /// `n` intervals of 8 nominal s starting every second, at `rate` real s per nominal s.
+    fn steady(n: usize, rate: f64) -> Vec<Interval> {
+        (0..n)
             .map(|k| Interval {
                 a_s: k as f64,
                 b_s: k as f64 + 8.0,
-                real_s: 8.0 * 0.9,
+                real_s: 8.0 * rate,
                 sigma_s: 0.05,
             })
-            .collect();
+            .collect()
+    }
+
+    #[test]
+    fn outliers_are_left_out_and_counted() {
+        let mut obs = steady(100, 0.9);
         // Three glitches: one 50 % off (before the fit), two 15 % off (outliers of it).
         obs[10].real_s = 12.0;
         obs[40].real_s = 8.0 * 0.9 * 1.15;
@@ -735,14 +740,7 @@ mod tests {
 
     #[test]
     fn absurd_spans_give_no_map_and_allocate_nothing() {
-        let obs: Vec<Interval> = (0..50)
-            .map(|k| Interval {
-                a_s: k as f64,
-                b_s: k as f64 + 8.0,
-                real_s: 8.0,
-                sigma_s: 0.05,
-            })
-            .collect();
+        let obs = steady(50, 1.0);
         assert_eq!(PaceMap::fit(&obs, 0.0, 1e12), None);
         // An observation spanning far more than an interval can is left out, not a band of
         // its width.
@@ -776,14 +774,7 @@ mod tests {
 
     #[test]
     fn the_map_never_runs_backwards_and_extrapolates() {
-        let obs: Vec<Interval> = (0..50)
-            .map(|k| Interval {
-                a_s: k as f64,
-                b_s: k as f64 + 8.0,
-                real_s: 8.0 * 1.2,
-                sigma_s: 0.05,
-            })
-            .collect();
+        let obs = steady(50, 1.2);
         let map = PaceMap::fit(&obs, 0.0, 58.0).unwrap();
         assert!(map.real_s(0.0).abs() < 1e-9);
         assert!(

@@ -28,10 +28,11 @@ fn what_an_aircraft_holds_stays_within_its_budget() {
     // velocity) and the IMM its published mode's NIS, 32 since its steady-flight q_h is
     // scaled per aircraft (`track::process_noise`: a scale, a count, a span), 40 since it
     // learns the tail index of its position innovations (`track::tails`: two percentiles,
-    // a count, ν) and 8 since its IMM keeps its CV model's along-track innovation for the
-    // plain `imm`'s learner.
+    // a count, ν), 8 since its IMM keeps its CV model's along-track innovation for the
+    // plain `imm`'s learner and 48 since each of its three noise scales keeps the data's own
+    // mean and whether they contradict the declaration (`track::noise`).
     assert!(
-        size_of::<HybridTracker>() <= 2088,
+        size_of::<HybridTracker>() <= 2136,
         "{}",
         size_of::<HybridTracker>()
     );

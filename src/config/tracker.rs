@@ -199,6 +199,9 @@ pub struct HybridConfig {
     /// An innovation's εᵀε is winsorised at this many times Tr(S) before the learner
     /// averages it (`NoiseParams::outlier_ratio`).
     pub noise_outlier_ratio: f64,
+    /// Let an aircraft's innovations overrule a declared accuracy they contradict
+    /// (`NoiseParams::prior_conflict`).
+    pub noise_prior_conflict: bool,
     /// Position reports out of their time set aside (`track::outlier`): the horizontal NIS
     /// above which (0: never), how many in a row at most, and below which share of recent
     /// position reports above it.
@@ -618,6 +621,7 @@ impl TrackerConfig {
                 false,
                 1.0e6,
             )?,
+            prior_conflict: h.noise_prior_conflict,
             ..NoiseParams::default()
         })
     }

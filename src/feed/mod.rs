@@ -151,6 +151,14 @@ pub struct ParseStats {
     pub paced_frames: u64,
 }
 
+impl ParseStats {
+    /// Every frame so far was paced (and there was one): a recording with no time of its
+    /// own, whose clock [`pace`] may learn.
+    pub fn all_paced(&self) -> bool {
+        self.frames > 0 && self.paced_frames == self.frames
+    }
+}
+
 /// An incremental frame parser: what every feed format implements.
 pub trait FrameParser: Send {
     /// Parses as many whole frames as `buf` holds into `out` and returns how many bytes of

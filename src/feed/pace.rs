@@ -222,7 +222,7 @@ impl PaceMap {
             }
         }
         let stats = reader.stats();
-        if stats.frames == 0 || stats.paced_frames != stats.frames {
+        if !stats.all_paced() {
             return Ok(None);
         }
         let Some((first, last)) = span else {
@@ -347,11 +347,11 @@ impl PaceMap {
 }
 
 /// Learns the real clock of a whole recording read in nominal time and moves its frames to
-/// it, if every frame was paced (`stats.paced_frames == stats.frames`: a recording with any
+/// it, if every frame was paced ([`super::ParseStats::all_paced`]: a recording with any
 /// time of its own is left alone) and the fit finds enough steady flight; returns what the
 /// fit found, or `None` with `frames` unchanged.
 pub fn learn_clock(frames: &mut [RawFrame], stats: &super::ParseStats) -> Option<PaceSummary> {
-    if stats.frames == 0 || stats.paced_frames != stats.frames {
+    if !stats.all_paced() {
         return None;
     }
     let map = PaceMap::fit_frames(frames)?;

@@ -231,11 +231,18 @@ impl NoiseScale {
     /// Learns from one update of the block, made with R = λ R₀ (`stat.tr_r`), its accuracy
     /// declared ([`NoiseParams::prior_weight`]).
     pub fn learn(&mut self, stat: &BlockStat, params: &NoiseParams) {
-        self.learn_with_prior(stat, params, params.prior_weight);
+        self.learn_with_prior(stat, params, params.prior_weight, params.prior_conflict);
     }
 
-    /// [`NoiseScale::learn`] with the declared R₀ worth `prior_weight` reports.
-    pub fn learn_with_prior(&mut self, stat: &BlockStat, params: &NoiseParams, prior_weight: f64) {
+    /// [`NoiseScale::learn`] with the declared R₀ worth `prior_weight` reports, and the
+    /// data allowed to overrule it (`may_conflict`, [`PRIOR_CONFLICT_SCALE`]) or not.
+    pub fn learn_with_prior(
+        &mut self,
+        stat: &BlockStat,
+        params: &NoiseParams,
+        prior_weight: f64,
+        may_conflict: bool,
+    ) {
         if !params.enabled || !stat.measured() || self.lambda <= 0.0 {
             return;
         }
@@ -263,13 +270,12 @@ impl NoiseScale {
         };
         self.push(sample, params, prior_weight);
         if !self.conflict
-            && params.prior_conflict
+            && may_conflict
             && prior_weight > CONFLICT_PRIOR_WEIGHT
             && self.n >= PRIOR_CONFLICT_REPORTS
             && self.data_mean < PRIOR_CONFLICT_SCALE
         {
             self.conflict = true;
-            let lo = params.min_scale.min(params.max_scale);
             let p = CONFLICT_PRIOR_WEIGHT;
             self.lambda =
                 ((p + self.n * self.data_mean) / (p + self.n)).clamp(lo, params.max_scale);
@@ -360,19 +366,23 @@ impl NoiseLearner {
     /// and there a faster fall measured worse (AFR34ZG, NUCp's 38 m: the hybrid's windowed
     /// NIS in band 82.8 → 78.9 %, the IMM's 56.4 → 48.6 %).
     pub fn learn(&mut self, position: &BlockStat, velocity: &BlockStat, params: &NoiseParams) {
-        let declared = |yes: bool| NoiseParams {
-            prior_conflict: params.prior_conflict && yes,
-            ..*params
-        };
-        self.position
-            .learn(position, &declared(self.accuracy_declared));
+        self.position.learn_with_prior(
+            position,
+            params,
+            params.prior_weight,
+            params.prior_conflict && self.accuracy_declared,
+        );
         let velocity_prior = if self.velocity_declared {
             params.prior_weight
         } else {
             params.undeclared_prior_weight
         };
-        self.velocity
-            .learn_with_prior(velocity, &declared(self.velocity_declared), velocity_prior);
+        self.velocity.learn_with_prior(
+            velocity,
+            params,
+            velocity_prior,
+            params.prior_conflict && self.velocity_declared,
+        );
     }
 
     /// Learns the white part of the position noise from the step between successive

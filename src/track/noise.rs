@@ -573,7 +573,11 @@ mod tests {
             let s = learned_scale(0.2, 1.0, steps, 0, &NoiseParams::default());
             // Below 0.04 by what the helper's filter overstates its own variance (its q on
             // a constant).
-            assert!(s.lambda() > 0.02 && s.lambda() < 0.045, "{steps}: {}", s.lambda());
+            assert!(
+                s.lambda() > 0.02 && s.lambda() < 0.045,
+                "{steps}: {}",
+                s.lambda()
+            );
             assert!(
                 s.effective() < 1.25 * s.lambda(),
                 "{steps}: λ {} applied {}",
@@ -584,7 +588,10 @@ mod tests {
             // about λ √(2/3); through a window of 100, λ's standard error about a tenth.
             let want = s.lambda() * (2.0_f64 / 3.0).sqrt() / (2.0 / s.weight - 1.0).sqrt();
             let got = s.lambda_std_err();
-            assert!(got > 0.5 * want && got < 2.0 * want, "{steps}: {got} vs {want}");
+            assert!(
+                got > 0.5 * want && got < 2.0 * want,
+                "{steps}: {got} vs {want}"
+            );
         }
     }
 

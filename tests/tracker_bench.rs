@@ -461,6 +461,12 @@ fn stale_position_bursts_are_set_aside() {
 /// while the position's claim stays honest: its correlated share is now learned from
 /// successive position reports, which a long filter memory does not fool (with covariance
 /// matching's λ, q_h = 0.01 had let the position ANEES reach 31).
+///
+/// Since λ's standard error is the samples' own scatter (`track::noise`), the learned
+/// velocity noise falls further at either q_h, the GNSS velocity's claim most at the
+/// larger one (10 runs: `airliner-gnss-velocity` velocity ANEES 0.21 → 0.37, NIS in band
+/// 39.1 → 52.5 %; `airliner-nacp10` 1.52 → 1.39, 83.9 → 88.7 %): the steady q_h still moves
+/// the claim towards its error, by less than twice where it was three times.
 #[test]
 fn repeating_velocity_reports_show_the_velocity_caution() {
     let runs = 10;
@@ -506,7 +512,7 @@ fn repeating_velocity_reports_show_the_velocity_caution() {
     assert!(nis(&gnss_before) < nis(&white_before) - 20.0, "{report}");
     // At the steady q_h the velocity claims move towards their errors, the windowed NIS
     // into its band, and the position claims stay where they were or nearer 2.
-    assert!(vel_anees(&gnss) > 2.5 * vel_anees(&gnss_before), "{report}");
+    assert!(vel_anees(&gnss) > 1.5 * vel_anees(&gnss_before), "{report}");
     assert!((1.0..2.4).contains(&vel_anees(&white)), "{report}");
     assert!(
         nis(&white) > 80.0 && nis(&gnss) > nis(&gnss_before) + 5.0,

@@ -189,8 +189,8 @@ async fn afr34zg_whole_flight() {
     let (code, t) = get_json(d.addr, "/api/v1/tracks/393322").await;
     assert_eq!(code, 200, "{t}");
     assert_eq!(t["callsign"], "AFR34ZG");
-    // Its bursts of stale positions (two or three 0.5-0.8 s behind the flight, every 16-48 s:
-    // `track::outlier`): the hybrid sets aside 160 positions in 69 bursts, counted on the
+    // Its bursts of stale positions (one to four 0.5-0.8 s behind the flight, every 16-48 s:
+    // `track::outlier`): the hybrid sets aside about 150 positions, counted on the
     // track and over the daemon alike, and each is still an accepted position.
     let outliers = t["outlier_positions"].as_u64().unwrap();
     assert_eq!(stats["outlier_positions"].as_u64(), Some(outliers));

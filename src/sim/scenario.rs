@@ -124,7 +124,7 @@ pub struct Settings {
     /// Bursts of stale positions: the mean interval between them, s (exponentially
     /// distributed; 0 = none, the default). In each burst `stale_position_reports` position
     /// reports in a row carry the position of `stale_position_age_s` earlier: what the real
-    /// AFR34ZG recording shows about every 48 s (two or three positions 0.5-0.8 s behind
+    /// AFR34ZG recording shows about every 48 s (one to four positions 0.5-0.8 s behind
     /// the flight, innovations of NIS 200-600 where 2 is usual; `docs/evaluation.md`).
     /// 0 or 1..=100,000.
     #[serde(default)]

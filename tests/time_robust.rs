@@ -33,19 +33,25 @@ fn parse(format: Format, data: &[u8]) -> (Vec<RawFrame>, ParseStats) {
 }
 
 /// What the daemon's per-aircraft pipeline makes of `frames` with the default tracker:
-/// track updates, positions rejected as impossible, and each aircraft's last state.
+/// track updates, positions rejected as impossible, and each aircraft's last state and
+/// last airborne state.
 struct Tracked {
     updates: u64,
     impossible_speed: u64,
     last: BTreeMap<String, TrackState>,
+    last_airborne: BTreeMap<String, TrackState>,
 }
 
 fn track(frames: &[RawFrame]) -> Tracked {
     let config = Config::default_config().unwrap();
     let mut p = sync_pipeline(&config, &config.tracker.algorithm);
     let mut last = BTreeMap::new();
+    let mut last_airborne = BTreeMap::new();
     for f in frames {
         if let Some(s) = p.push(f).and_then(|u| u.state) {
+            if !s.on_ground {
+                last_airborne.insert(s.icao.to_string(), s.clone());
+            }
             last.insert(s.icao.to_string(), s);
         }
     }
@@ -58,11 +64,13 @@ fn track(frames: &[RawFrame]) -> Tracked {
             .copied()
             .unwrap_or(0),
         last,
+        last_airborne,
     }
 }
 
 /// The clean flight's figures, and the same for a corrupted copy: updates within `slack`,
-/// no more impossible-speed rejections, and the same final position and time.
+/// no more impossible-speed rejections, and the same final position and time, and the same
+/// last airborne state.
 fn assert_same_tracks(clean: &Tracked, got: &Tracked, slack: u64, what: &str) {
     assert!(
         got.updates.abs_diff(clean.updates) <= slack,
@@ -80,13 +88,16 @@ fn assert_same_tracks(clean: &Tracked, got: &Tracked, slack: u64, what: &str) {
         got.last.keys().collect::<Vec<_>>(),
         clean.last.keys().collect::<Vec<_>>()
     );
+    // The last state's position, and its altitude while airborne. On the surface nothing
+    // reports an altitude (surface position messages carry none): the estimate holds what
+    // the filter's vertical model makes of no measurement, and after a missing frame has
+    // moved a mode label the two runs' surface altitudes drift apart by a few metres
+    // (AFR34ZG's taxi at Toulouse: 139.5 against 144.8 m after four minutes). So the
+    // altitude is compared where it was last measured: at the last airborne state.
     for (icao, c) in &clean.last {
         let g = &got.last[icao];
-        // Metres: 1e-5 degrees of latitude is 1.1 m.
-        let d_north_m = (g.lat - c.lat) * 111_200.0;
-        let d_east_m = (g.lon - c.lon) * 111_200.0 * c.lat.to_radians().cos();
         assert!(
-            d_north_m.hypot(d_east_m) < 1.0 && (g.alt_m - c.alt_m).abs() < 1.0,
+            metres_apart(g, c) < 1.0 && (c.on_ground || (g.alt_m - c.alt_m).abs() < 1.0),
             "{what}: {icao} ends at {},{} {} m, clean {},{} {} m",
             g.lat,
             g.lon,
@@ -95,8 +106,30 @@ fn assert_same_tracks(clean: &Tracked, got: &Tracked, slack: u64, what: &str) {
             c.lon,
             c.alt_m
         );
+        assert_eq!(g.on_ground, c.on_ground, "{what}: {icao} on the ground");
         assert_eq!(g.t, c.t, "{what}: {icao} last update time");
     }
+    for (icao, c) in &clean.last_airborne {
+        let g = &got.last_airborne[icao];
+        assert!(
+            metres_apart(g, c) < 1.0 && (g.alt_m - c.alt_m).abs() < 1.0,
+            "{what}: {icao} last airborne at {},{} {} m, clean {},{} {} m",
+            g.lat,
+            g.lon,
+            g.alt_m,
+            c.lat,
+            c.lon,
+            c.alt_m
+        );
+        assert_eq!(g.t, c.t, "{what}: {icao} last airborne time");
+    }
+}
+
+/// Horizontal distance between two states, m: 1e-5 degrees of latitude is 1.1 m.
+fn metres_apart(a: &TrackState, b: &TrackState) -> f64 {
+    let d_north_m = (a.lat - b.lat) * 111_200.0;
+    let d_east_m = (a.lon - b.lon) * 111_200.0 * b.lat.to_radians().cos();
+    d_north_m.hypot(d_east_m)
 }
 
 /// The JSON-lines flight's (unix time, frame hex) per line.

@@ -36,7 +36,8 @@ use super::divergence::{guarded_update, let_prediction, DivergenceParams, Observ
 use super::gate::{Gate, GateFlags, GateParams, GateReading};
 use super::imm::{
     estimate_of, labels_of_mode, AxisThresholds, EstimateInfo, Imm, ImmMode, ImmParams, InitParams,
-    Initiator, Labels, Start, IMM_NAME, N_MODES,
+    Initiator, Labels, Start, IMM_NAME, LEARN_CV_PROBABILITY, N_MODES, VELOCITY_CURRENT_S,
+    VELOCITY_FITS_MODE_NIS,
 };
 use super::kalman::{self, MotionModel};
 use super::lag::VelocityLag;
@@ -179,8 +180,9 @@ pub struct HybridParams {
     pub learn_velocity_lag: bool,
     /// Position reports out of their time set aside ([`super::outlier`]): while velocity
     /// reports show a straight flight, a position whose horizontal NIS in the CV filter
-    /// is one a consistent filter shows once in 10⁶ reports, at most two in a row and
-    /// while such reports are rare. Default on ([`OutlierParams::default`]).
+    /// is one a consistent filter shows once in 10⁶ reports, at most four in a row and
+    /// while such reports are rare; in the IMM branch, the same against the held mode
+    /// while the velocity reports fit it. Default on ([`OutlierParams::default`]).
     pub outliers: OutlierParams,
     /// The CV filter's q_h scaled per aircraft by what its velocity reports show
     /// ([`super::process_noise`]), at most the configured [`HybridParams::cv`]'s. Default on.
@@ -308,6 +310,11 @@ pub struct HybridTracker {
     labels: Labels,
     /// Feed time of the last report with a velocity.
     last_velocity_t_s: Option<f64>,
+    /// In the IMM branch, the last velocity report's feed time, the IMM mode held before
+    /// it, and whether that mode's innovation on it was within [`VELOCITY_FITS_MODE_NIS`]:
+    /// the velocity reports vouch for the manoeuvre the held mode predicts, as the gate's
+    /// flags do for the CV filter's straight line.
+    imm_velocity_fit: Option<(f64, ImmMode, bool)>,
     /// Feed time the gate (or the divergence trigger) last held.
     last_fire_t_s: f64,
     /// When the gate last named each IMM mode ([`gate_modes`]), s.
@@ -359,6 +366,7 @@ impl HybridTracker {
             },
             labels: Labels::CV,
             last_velocity_t_s: None,
+            imm_velocity_fit: None,
             last_fire_t_s: f64::NEG_INFINITY,
             named_t_s: [f64::NEG_INFINITY; N_MODES],
             cv_divergence_run: 0,
@@ -435,6 +443,7 @@ impl HybridTracker {
         self.cv_divergence_run = 0;
         self.diverging = false;
         self.last_velocity_t_s = None;
+        self.imm_velocity_fit = None;
         self.steady_q.restart();
         self.nis.clear();
         if let Some(v) = velocity {
@@ -444,11 +453,14 @@ impl HybridTracker {
         }
     }
 
-    /// Runs the current filter on the report. `vouched`: current velocity reports show no
-    /// horizontal manoeuvre, so a position far off the CV filter's line may be set aside
-    /// ([`super::outlier`]); then `Ok(false)`, and the track is as it was.
+    /// Runs the current filter on the report at `t_s`. `vouched`: current velocity reports
+    /// show no horizontal manoeuvre, so a position far off the CV filter's line may be set
+    /// aside ([`super::outlier`]); then `Ok(false)`, and the track is as it was. In the IMM
+    /// branch a position may be set aside where the held mode's prediction is vouched for
+    /// ([`HybridTracker::imm_velocity_fit`]), as in the plain `imm`.
     fn filter_step(
         &mut self,
+        t_s: f64,
         dt_s: f64,
         obs: &Observation,
         vouched: bool,
@@ -521,7 +533,32 @@ impl HybridTracker {
                 published
             }
             Branch::Imm { .. } => {
+                let held = self.imm.most_probable();
+                let position_only = matches!(obs, Observation::Position(_));
+                let vouched = position_only
+                    && self.imm.probabilities()[held.index()] >= LEARN_CV_PROBABILITY
+                    && self.imm_velocity_fit.is_some_and(|(t, mode, fits)| {
+                        fits && mode == held && t_s - t <= VELOCITY_CURRENT_S
+                    });
+                // A report that may be set aside is stepped from a copy kept to go back to.
+                let before = (vouched
+                    && self.outliers.may_set_aside(vouched, &self.params.outliers))
+                .then(|| self.imm.clone());
                 self.imm.step(dt_s, obs)?;
+                if !position_only {
+                    let fits = self.imm.nis(held) < VELOCITY_FITS_MODE_NIS;
+                    self.imm_velocity_fit = Some((t_s, held, fits));
+                }
+                if position_only
+                    && self
+                        .outliers
+                        .set_aside(self.imm.nis(held), vouched, &self.params.outliers)
+                {
+                    if let Some(before) = before {
+                        self.imm = before;
+                        return Ok(false);
+                    }
+                }
                 let best = self.imm.most_probable();
                 self.diverging = self.imm.divergence_run(best) >= self.params.divergence.confirm;
                 self.velocity_correction_cov = *self.imm.velocity_correction_cov();
@@ -923,7 +960,7 @@ impl Tracker for HybridTracker {
                     let f = self.gate.reading().flags;
                     !(f.turning() || f.speed_changing() || self.velocity_stale(m.t_s))
                 };
-                if !self.filter_step(dt_s, &obs, vouched)? {
+                if !self.filter_step(m.t_s, dt_s, &obs, vouched)? {
                     return Ok(());
                 }
                 if let Branch::Cv { x, .. } = &self.branch {

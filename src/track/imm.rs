@@ -1330,10 +1330,11 @@ pub struct ImmTrackerParams {
     /// (`HybridParams::learn_velocity_lag`); until a lag is learnt,
     /// [`ImmParams::velocity_lag_s`]. Default true.
     pub learn_velocity_lag: bool,
-    /// Position reports out of their time set aside ([`super::outlier`]), judged by the CV
-    /// model's innovation while CV holds at least [`LEARN_CV_PROBABILITY`] and the last
-    /// velocity report, within 3 s, fitted CV: the velocity reports vouch for a straight
-    /// flight, as the hybrid's gate does for its CV filter. Default on.
+    /// Position reports out of their time set aside ([`super::outlier`]), judged by the
+    /// held mode's innovation while that mode holds at least [`LEARN_CV_PROBABILITY`] and
+    /// the last velocity report, within 3 s, fitted it: the velocity reports vouch for the
+    /// flight the mode predicts (a straight line under CV, the turn under CT), as the
+    /// hybrid's gate does for its CV filter. Default on.
     pub outliers: OutlierParams,
     /// A position report's term of the windowed NIS read under a Student-t claim of the
     /// aircraft's tail index ([`super::tails`]), learned from the CV model's along-track
@@ -1357,12 +1358,13 @@ impl Default for ImmTrackerParams {
 
 /// Velocity reports older than this no longer vouch for a straight flight (the outlier
 /// test's condition), s: the hybrid's `velocity_stale_s` default, six missed reports.
-const VELOCITY_CURRENT_S: f64 = 3.0;
+pub const VELOCITY_CURRENT_S: f64 = 3.0;
 
-/// A velocity report vouches for a straight flight when the CV model's horizontal NIS on it
-/// is under this: χ²(2)'s 99 % point, −2 ln 0.01. A turn's or a speed change's first
-/// reports exceed it before CV's probability falls.
-const VELOCITY_FITS_CV_NIS: f64 = 9.21;
+/// A velocity report vouches for the flight the held mode predicts (a straight line under
+/// CV, the turn under CT) when that mode's horizontal NIS on it is under this: χ²(2)'s 99 %
+/// point, −2 ln 0.01. A turn's or a speed change's first reports exceed it under CV before
+/// CV's probability falls, and a roll-out's under CT.
+pub const VELOCITY_FITS_MODE_NIS: f64 = 9.21;
 
 /// The plain IMM learns the measurement noise only while its CV mode is this probable: the
 /// other models' innovations, and CV's in a manoeuvre, carry model error.
@@ -1409,10 +1411,11 @@ pub struct ImmTracker {
     outliers: OutlierGate,
     /// The tail index of its position innovations ([`super::tails`]), kept across restarts.
     tails: PositionTails,
-    /// Feed time of the last velocity report, s, and whether the CV model's innovation on
-    /// it was within [`VELOCITY_FITS_CV_NIS`]: the IMM's word for "the velocity reports
-    /// show a straight flight", which the hybrid takes from its gate.
-    last_velocity: Option<(f64, bool)>,
+    /// Feed time of the last velocity report, s, the mode held before it, and whether that
+    /// mode's innovation on it was within [`VELOCITY_FITS_MODE_NIS`]: the IMM's word for
+    /// "the velocity reports show the flight the held mode predicts", which the hybrid's CV
+    /// filter takes from its gate.
+    last_velocity: Option<(f64, ImmMode, bool)>,
 }
 
 impl Default for ImmTracker {
@@ -1562,10 +1565,11 @@ impl Tracker for ImmTracker {
                 // first as CV's innovation, and is learned from once at most.
                 let steady = self.imm.probabilities()[ImmMode::Cv.index()] >= LEARN_CV_PROBABILITY;
                 let position_only = matches!(obs, Observation::Position(_));
-                let vouched = steady
-                    && self
-                        .last_velocity
-                        .is_some_and(|(t, fits)| fits && m.t_s - t <= VELOCITY_CURRENT_S);
+                let held = self.imm.most_probable();
+                let vouched = self.imm.probabilities()[held.index()] >= LEARN_CV_PROBABILITY
+                    && self.last_velocity.is_some_and(|(t, mode, fits)| {
+                        fits && mode == held && m.t_s - t <= VELOCITY_CURRENT_S
+                    });
                 // The step runs in place; a report that may be set aside is stepped from a
                 // copy kept to go back to (about 2.6 KB, only then).
                 let before = (position_only
@@ -1573,15 +1577,13 @@ impl Tracker for ImmTracker {
                 .then(|| self.imm.clone());
                 self.imm.step(dt_s, &obs)?;
                 if m.velocity.is_some() {
-                    let fits = self.imm.nis(ImmMode::Cv) < VELOCITY_FITS_CV_NIS;
-                    self.last_velocity = Some((m.t_s, fits));
+                    let fits = self.imm.nis(held) < VELOCITY_FITS_MODE_NIS;
+                    self.last_velocity = Some((m.t_s, held, fits));
                 }
                 if position_only
-                    && self.outliers.set_aside(
-                        self.imm.nis(ImmMode::Cv),
-                        vouched,
-                        &self.params.outliers,
-                    )
+                    && self
+                        .outliers
+                        .set_aside(self.imm.nis(held), vouched, &self.params.outliers)
                 {
                     if let Some(before) = before {
                         self.imm = before;

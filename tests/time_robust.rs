@@ -96,33 +96,28 @@ fn assert_same_tracks(clean: &Tracked, got: &Tracked, slack: u64, what: &str) {
     // altitude is compared where it was last measured: at the last airborne state.
     for (icao, c) in &clean.last {
         let g = &got.last[icao];
-        assert!(
-            metres_apart(g, c) < 1.0 && (c.on_ground || (g.alt_m - c.alt_m).abs() < 1.0),
-            "{what}: {icao} ends at {},{} {} m, clean {},{} {} m",
-            g.lat,
-            g.lon,
-            g.alt_m,
-            c.lat,
-            c.lon,
-            c.alt_m
-        );
+        assert_near(g, c, !c.on_ground, &format!("{what}: {icao} ends"));
         assert_eq!(g.on_ground, c.on_ground, "{what}: {icao} on the ground");
-        assert_eq!(g.t, c.t, "{what}: {icao} last update time");
     }
     for (icao, c) in &clean.last_airborne {
         let g = &got.last_airborne[icao];
-        assert!(
-            metres_apart(g, c) < 1.0 && (g.alt_m - c.alt_m).abs() < 1.0,
-            "{what}: {icao} last airborne at {},{} {} m, clean {},{} {} m",
-            g.lat,
-            g.lon,
-            g.alt_m,
-            c.lat,
-            c.lon,
-            c.alt_m
-        );
-        assert_eq!(g.t, c.t, "{what}: {icao} last airborne time");
+        assert_near(g, c, true, &format!("{what}: {icao} last airborne"));
     }
+}
+
+/// `got` within 1 m of `clean` horizontally (and in altitude if `altitude`), at its time.
+fn assert_near(got: &TrackState, clean: &TrackState, altitude: bool, what: &str) {
+    assert!(
+        metres_apart(got, clean) < 1.0 && (!altitude || (got.alt_m - clean.alt_m).abs() < 1.0),
+        "{what} at {},{} {} m, clean {},{} {} m",
+        got.lat,
+        got.lon,
+        got.alt_m,
+        clean.lat,
+        clean.lon,
+        clean.alt_m
+    );
+    assert_eq!(got.t, clean.t, "{what}: update time");
 }
 
 /// Horizontal distance between two states, m: 1e-5 degrees of latitude is 1.1 m.

@@ -35,9 +35,8 @@
 use super::divergence::{guarded_update, let_prediction, DivergenceParams, Observation};
 use super::gate::{Gate, GateFlags, GateParams, GateReading};
 use super::imm::{
-    estimate_of, labels_of_mode, AxisThresholds, EstimateInfo, Imm, ImmMode, ImmParams, InitParams,
-    Initiator, Labels, Start, IMM_NAME, LEARN_CV_PROBABILITY, N_MODES, VELOCITY_CURRENT_S,
-    VELOCITY_FITS_MODE_NIS,
+    estimate_of, labels_of_mode, AxisThresholds, EstimateInfo, HeldModeFit, Imm, ImmMode,
+    ImmParams, InitParams, Initiator, Labels, Start, IMM_NAME, N_MODES,
 };
 use super::kalman::{self, MotionModel};
 use super::lag::VelocityLag;
@@ -310,11 +309,9 @@ pub struct HybridTracker {
     labels: Labels,
     /// Feed time of the last report with a velocity.
     last_velocity_t_s: Option<f64>,
-    /// In the IMM branch, the last velocity report's feed time, the IMM mode held before
-    /// it, and whether that mode's innovation on it was within [`VELOCITY_FITS_MODE_NIS`]:
-    /// the velocity reports vouch for the manoeuvre the held mode predicts, as the gate's
-    /// flags do for the CV filter's straight line.
-    imm_velocity_fit: Option<(f64, ImmMode, bool)>,
+    /// In the IMM branch, what the velocity reports vouch for: the manoeuvre the held mode
+    /// predicts, as the gate's flags do for the CV filter's straight line.
+    imm_fit: HeldModeFit,
     /// Feed time the gate (or the divergence trigger) last held.
     last_fire_t_s: f64,
     /// When the gate last named each IMM mode ([`gate_modes`]), s.
@@ -366,7 +363,7 @@ impl HybridTracker {
             },
             labels: Labels::CV,
             last_velocity_t_s: None,
-            imm_velocity_fit: None,
+            imm_fit: HeldModeFit::default(),
             last_fire_t_s: f64::NEG_INFINITY,
             named_t_s: [f64::NEG_INFINITY; N_MODES],
             cv_divergence_run: 0,
@@ -443,7 +440,7 @@ impl HybridTracker {
         self.cv_divergence_run = 0;
         self.diverging = false;
         self.last_velocity_t_s = None;
-        self.imm_velocity_fit = None;
+        self.imm_fit = HeldModeFit::default();
         self.steady_q.restart();
         self.nis.clear();
         if let Some(v) = velocity {
@@ -457,7 +454,7 @@ impl HybridTracker {
     /// show no horizontal manoeuvre, so a position far off the CV filter's line may be set
     /// aside ([`super::outlier`]); then `Ok(false)`, and the track is as it was. In the IMM
     /// branch a position may be set aside where the held mode's prediction is vouched for
-    /// ([`HybridTracker::imm_velocity_fit`]), as in the plain `imm`.
+    /// ([`HeldModeFit`]), as in the plain `imm`.
     fn filter_step(
         &mut self,
         t_s: f64,
@@ -533,31 +530,15 @@ impl HybridTracker {
                 published
             }
             Branch::Imm { .. } => {
-                let held = self.imm.most_probable();
-                let position_only = matches!(obs, Observation::Position(_));
-                let vouched = position_only
-                    && self.imm.probabilities()[held.index()] >= LEARN_CV_PROBABILITY
-                    && self.imm_velocity_fit.is_some_and(|(t, mode, fits)| {
-                        fits && mode == held && t_s - t <= VELOCITY_CURRENT_S
-                    });
-                // A report that may be set aside is stepped from a copy kept to go back to.
-                let before = (vouched
-                    && self.outliers.may_set_aside(vouched, &self.params.outliers))
-                .then(|| self.imm.clone());
-                self.imm.step(dt_s, obs)?;
-                if !position_only {
-                    let fits = self.imm.nis(held) < VELOCITY_FITS_MODE_NIS;
-                    self.imm_velocity_fit = Some((t_s, held, fits));
-                }
-                if position_only
-                    && self
-                        .outliers
-                        .set_aside(self.imm.nis(held), vouched, &self.params.outliers)
-                {
-                    if let Some(before) = before {
-                        self.imm = before;
-                        return Ok(false);
-                    }
+                if !self.imm_fit.step(
+                    &mut self.imm,
+                    &mut self.outliers,
+                    &self.params.outliers,
+                    t_s,
+                    dt_s,
+                    obs,
+                )? {
+                    return Ok(false);
                 }
                 let best = self.imm.most_probable();
                 self.diverging = self.imm.divergence_run(best) >= self.params.divergence.confirm;

@@ -1370,6 +1370,53 @@ pub const VELOCITY_FITS_MODE_NIS: f64 = 9.21;
 /// other models' innovations, and CV's in a manoeuvre, carry model error.
 pub const LEARN_CV_PROBABILITY: f64 = 0.9;
 
+/// What an IMM's velocity reports vouch for ([`super::outlier`]): the last one's feed time,
+/// the mode held before it, and whether that mode's horizontal innovation on it was within
+/// [`VELOCITY_FITS_MODE_NIS`]. A position far off the held mode's prediction may be set
+/// aside while that mode holds at least [`LEARN_CV_PROBABILITY`] and the last velocity
+/// report, within [`VELOCITY_CURRENT_S`], fitted it: a straight line under CV, the turn
+/// under CT. What the plain `imm` and the hybrid's IMM branch share.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct HeldModeFit {
+    last_velocity: Option<(f64, ImmMode, bool)>,
+}
+
+impl HeldModeFit {
+    /// Steps `imm` on `obs` at `t_s`, or sets the report aside (`Ok(false)`, `imm` as it
+    /// was) when it is a position the velocity reports vouch against and `gate` sets aside.
+    pub fn step(
+        &mut self,
+        imm: &mut Imm,
+        gate: &mut OutlierGate,
+        params: &OutlierParams,
+        t_s: f64,
+        dt_s: f64,
+        obs: &Observation,
+    ) -> Result<bool, TrackError> {
+        let held = imm.most_probable();
+        let position_only = matches!(obs, Observation::Position(_));
+        let vouched = imm.probabilities()[held.index()] >= LEARN_CV_PROBABILITY
+            && self.last_velocity.is_some_and(|(t, mode, fits)| {
+                fits && mode == held && t_s - t <= VELOCITY_CURRENT_S
+            });
+        // The step runs in place; a report that may be set aside is stepped from a copy
+        // kept to go back to (about 2.6 KB, only then).
+        let before = (position_only && gate.may_set_aside(vouched, params)).then(|| imm.clone());
+        imm.step(dt_s, obs)?;
+        if !position_only {
+            let fits = imm.nis(held) < VELOCITY_FITS_MODE_NIS;
+            self.last_velocity = Some((t_s, held, fits));
+        }
+        if position_only && gate.set_aside(imm.nis(held), vouched, params) {
+            if let Some(before) = before {
+                *imm = before;
+                return Ok(false);
+            }
+        }
+        Ok(true)
+    }
+}
+
 /// Thresholds turning a state into the I062/200 movement axes.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct AxisThresholds {
@@ -1411,11 +1458,9 @@ pub struct ImmTracker {
     outliers: OutlierGate,
     /// The tail index of its position innovations ([`super::tails`]), kept across restarts.
     tails: PositionTails,
-    /// Feed time of the last velocity report, s, the mode held before it, and whether that
-    /// mode's innovation on it was within [`VELOCITY_FITS_MODE_NIS`]: the IMM's word for
-    /// "the velocity reports show the flight the held mode predicts", which the hybrid's CV
-    /// filter takes from its gate.
-    last_velocity: Option<(f64, ImmMode, bool)>,
+    /// What its velocity reports vouch for: the IMM's word for "the velocity reports show
+    /// the flight the held mode predicts", which the hybrid's CV filter takes from its gate.
+    held_fit: HeldModeFit,
 }
 
 impl Default for ImmTracker {
@@ -1438,7 +1483,7 @@ impl ImmTracker {
             lag: None,
             outliers: OutlierGate::default(),
             tails: PositionTails::default(),
-            last_velocity: None,
+            held_fit: HeldModeFit::default(),
         }
     }
 
@@ -1565,30 +1610,15 @@ impl Tracker for ImmTracker {
                 // first as CV's innovation, and is learned from once at most.
                 let steady = self.imm.probabilities()[ImmMode::Cv.index()] >= LEARN_CV_PROBABILITY;
                 let position_only = matches!(obs, Observation::Position(_));
-                let held = self.imm.most_probable();
-                let vouched = self.imm.probabilities()[held.index()] >= LEARN_CV_PROBABILITY
-                    && self.last_velocity.is_some_and(|(t, mode, fits)| {
-                        fits && mode == held && m.t_s - t <= VELOCITY_CURRENT_S
-                    });
-                // The step runs in place; a report that may be set aside is stepped from a
-                // copy kept to go back to (about 2.6 KB, only then).
-                let before = (position_only
-                    && self.outliers.may_set_aside(vouched, &self.params.outliers))
-                .then(|| self.imm.clone());
-                self.imm.step(dt_s, &obs)?;
-                if m.velocity.is_some() {
-                    let fits = self.imm.nis(held) < VELOCITY_FITS_MODE_NIS;
-                    self.last_velocity = Some((m.t_s, held, fits));
-                }
-                if position_only
-                    && self
-                        .outliers
-                        .set_aside(self.imm.nis(held), vouched, &self.params.outliers)
-                {
-                    if let Some(before) = before {
-                        self.imm = before;
-                        return Ok(());
-                    }
+                if !self.held_fit.step(
+                    &mut self.imm,
+                    &mut self.outliers,
+                    &self.params.outliers,
+                    m.t_s,
+                    dt_s,
+                    &obs,
+                )? {
+                    return Ok(());
                 }
                 if steady {
                     let [pos, vel] = *self.imm.cv_blocks();
@@ -2230,6 +2260,74 @@ mod tests {
                     "{model:?} {dt_s}"
                 );
             }
+        }
+    }
+
+    /// [`HeldModeFit`]: a position far off the held mode's prediction is set aside (the IMM
+    /// as it was) while the velocity reports fit that mode, in straight flight under CV and
+    /// in a turn under CT; once a velocity report does not fit, the next position is used.
+    #[test]
+    fn the_held_mode_vouches_for_its_own_flight() {
+        let params = OutlierParams::default();
+        // (turn rate °/s, the mode that holds.)
+        for (rate_dps, mode) in [(0.0, ImmMode::Cv), (3.0, ImmMode::CtLeft)] {
+            let omega = f64::to_radians(rate_dps);
+            let (v_mps, r_m) = (100.0, 100.0 / omega.max(1e-12));
+            // A level flight from the origin heading east, turning left at `omega`.
+            let truth = |t: f64| {
+                let (s, c) = (omega * t).sin_cos();
+                if omega == 0.0 {
+                    (
+                        Vector3::new(v_mps * t, 0.0, 0.0),
+                        Vector3::new(v_mps, 0.0, 0.0),
+                    )
+                } else {
+                    (
+                        Vector3::new(r_m * s, r_m * (1.0 - c), 0.0),
+                        Vector3::new(v_mps * c, v_mps * s, 0.0),
+                    )
+                }
+            };
+            let mut imm = level_at_100_mps();
+            let (mut fit, mut gate) = (HeldModeFit::default(), OutlierGate::default());
+            let mut t = 0.0;
+            for k in 0..120 {
+                t += 0.5;
+                let (pos, vel) = truth(t);
+                let obs = if k % 2 == 0 {
+                    Observation::Position(observed(pos, 3.0))
+                } else {
+                    Observation::Velocity(observed(vel, 0.5))
+                };
+                assert!(fit
+                    .step(&mut imm, &mut gate, &params, t, 0.5, &obs)
+                    .unwrap());
+            }
+            assert_eq!(imm.most_probable(), mode, "{rate_dps}");
+            assert!(imm.probabilities()[mode.index()] >= LEARN_CV_PROBABILITY);
+            // A position 0.6 s stale (60 m behind along the flight): set aside, nothing moved.
+            let kept = imm.combined_state();
+            t += 0.5;
+            let stale = Observation::Position(observed(truth(t - 0.6).0, 3.0));
+            assert!(!fit
+                .step(&mut imm, &mut gate, &params, t, 0.5, &stale)
+                .unwrap());
+            assert_eq!(imm.combined_state(), kept, "{rate_dps}");
+            assert_eq!(gate.count(), 1);
+            // A velocity report 20 m/s off the mode: it vouches for nothing, and the next
+            // stale position is used.
+            t += 0.5;
+            let (_, vel) = truth(t);
+            let off = Observation::Velocity(observed(vel + Vector3::new(0.0, 20.0, 0.0), 0.5));
+            assert!(fit
+                .step(&mut imm, &mut gate, &params, t, 0.5, &off)
+                .unwrap());
+            t += 0.5;
+            let stale = Observation::Position(observed(truth(t - 0.6).0, 3.0));
+            assert!(fit
+                .step(&mut imm, &mut gate, &params, t, 0.5, &stale)
+                .unwrap());
+            assert_eq!(gate.count(), 1, "{rate_dps}");
         }
     }
 }

@@ -1356,15 +1356,16 @@ impl Default for ImmTrackerParams {
     }
 }
 
-/// Velocity reports older than this no longer vouch for a straight flight (the outlier
-/// test's condition), s: the hybrid's `velocity_stale_s` default, six missed reports.
-pub const VELOCITY_CURRENT_S: f64 = 3.0;
+/// Velocity reports older than this no longer vouch for the held mode's flight (the
+/// outlier test's condition, [`HeldModeFit`]), s: the hybrid's `velocity_stale_s`
+/// default, six missed reports.
+const VELOCITY_CURRENT_S: f64 = 3.0;
 
 /// A velocity report vouches for the flight the held mode predicts (a straight line under
 /// CV, the turn under CT) when that mode's horizontal NIS on it is under this: χ²(2)'s 99 %
 /// point, −2 ln 0.01. A turn's or a speed change's first reports exceed it under CV before
 /// CV's probability falls, and a roll-out's under CT.
-pub const VELOCITY_FITS_MODE_NIS: f64 = 9.21;
+const VELOCITY_FITS_MODE_NIS: f64 = 9.21;
 
 /// The plain IMM learns the measurement noise only while its CV mode is this probable: the
 /// other models' innovations, and CV's in a manoeuvre, carry model error.
@@ -1372,10 +1373,10 @@ pub const LEARN_CV_PROBABILITY: f64 = 0.9;
 
 /// What an IMM's velocity reports vouch for ([`super::outlier`]): the last one's feed time,
 /// the mode held before it, and whether that mode's horizontal innovation on it was within
-/// [`VELOCITY_FITS_MODE_NIS`]. A position far off the held mode's prediction may be set
-/// aside while that mode holds at least [`LEARN_CV_PROBABILITY`] and the last velocity
-/// report, within [`VELOCITY_CURRENT_S`], fitted it: a straight line under CV, the turn
-/// under CT. What the plain `imm` and the hybrid's IMM branch share.
+/// χ²(2)'s 99 % point (`VELOCITY_FITS_MODE_NIS`). A position far off the held mode's
+/// prediction may be set aside while that mode holds at least [`LEARN_CV_PROBABILITY`] and
+/// the last velocity report, within 3 s (`VELOCITY_CURRENT_S`), fitted it: a straight line
+/// under CV, the turn under CT. What the plain `imm` and the hybrid's IMM branch share.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct HeldModeFit {
     last_velocity: Option<(f64, ImmMode, bool)>,

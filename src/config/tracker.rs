@@ -194,6 +194,10 @@ pub struct HybridConfig {
     /// aircraft (`track::tails`); false: the Gaussian NIS. The estimate is the same either
     /// way.
     pub learn_position_tails: bool,
+    /// The same for a velocity report on a narrow claim (its two quantile residuals), under
+    /// a tail index learned from them (`track::tails`, "Velocity reports"); false: the
+    /// Gaussian quantile NIS.
+    pub learn_velocity_tails: bool,
     /// Bounds of the learned factor on the declared covariance.
     pub noise_scale_limits: [f64; 2],
     /// An innovation's εᵀε is winsorised at this many times Tr(S) before the learner
@@ -500,6 +504,7 @@ impl TrackerConfig {
         p.learn_velocity_lag = self.hybrid.learn_velocity_lag;
         p.outliers = self.outlier_params()?;
         p.tails = self.tail_params();
+        p.velocity_tails = self.velocity_tail_params();
         Ok(p)
     }
 
@@ -565,6 +570,7 @@ impl TrackerConfig {
             ..SteadyQParams::default()
         };
         p.tails = self.tail_params();
+        p.velocity_tails = self.velocity_tail_params();
         Ok(p)
     }
 
@@ -573,6 +579,15 @@ impl TrackerConfig {
     fn tail_params(&self) -> TailParams {
         TailParams {
             enabled: self.hybrid.learn_position_tails,
+            ..TailParams::default()
+        }
+    }
+
+    /// The velocity terms' tail index of `hybrid` and `imm`
+    /// (`tracker.hybrid.learn_velocity_tails`).
+    fn velocity_tail_params(&self) -> TailParams {
+        TailParams {
+            enabled: self.hybrid.learn_velocity_tails,
             ..TailParams::default()
         }
     }

@@ -45,7 +45,7 @@ use super::nis::NisWindow;
 use super::noise::{local_up, NoiseLearner, NoiseParams};
 use super::outlier::{OutlierGate, OutlierParams};
 use super::process_noise::{Narrow, SteadyQ, SteadyQParams};
-use super::tails::{PositionTails, TailParams};
+use super::tails::{TailIndex, TailParams};
 use super::{
     Estimate, FlightMode, Lateral, Measurement, Observed, PositionPrediction, TrackError, Tracker,
     TurnDirection,
@@ -189,6 +189,10 @@ pub struct HybridParams {
     /// A position report's term of the windowed NIS read under a Student-t claim of the
     /// aircraft's own tail index ([`super::tails`]); the estimate is unchanged. Default on.
     pub tails: TailParams,
+    /// The same for a velocity report on a narrow claim, its two quantile residuals read
+    /// under the tail index of the aircraft's velocity reports (module doc of
+    /// [`super::tails`], "Velocity reports"). Default on.
+    pub velocity_tails: TailParams,
 }
 
 impl Default for HybridParams {
@@ -216,6 +220,7 @@ impl Default for HybridParams {
             outliers: OutlierParams::default(),
             steady_q: SteadyQParams::default(),
             tails: TailParams::default(),
+            velocity_tails: TailParams::default(),
         }
     }
 }
@@ -340,7 +345,10 @@ pub struct HybridTracker {
     steady_q: SteadyQ,
     /// The tail index of its CV filter's position innovations ([`super::tails`]). Kept over
     /// a restart like the noise.
-    tails: PositionTails,
+    tails: TailIndex,
+    /// The tail index of its CV filter's velocity reports' quantile residuals. Kept the same
+    /// way.
+    velocity_tails: TailIndex,
 }
 
 impl Default for HybridTracker {
@@ -376,7 +384,8 @@ impl HybridTracker {
             noise: NoiseLearner::default(),
             lag: None,
             steady_q: SteadyQ::default(),
-            tails: PositionTails::default(),
+            tails: TailIndex::default(),
+            velocity_tails: TailIndex::default(),
         }
     }
 
@@ -489,26 +498,42 @@ impl HybridTracker {
                 *x = x_new;
                 *p = p_new;
                 // The report's term of the windowed NIS, its quantiles taken once; a
-                // position's read under the aircraft's tail index before it learns from it.
-                let published = if let Observation::Position(o) = obs {
-                    let term = self.tails.nis(g.nis_horizontal);
-                    if self.params.tails.enabled {
-                        self.tails.learn(
-                            super::tails::along_track_z(&pred, &o.cov, &o.value),
-                            &self.params.tails,
-                        );
+                // position's, and a velocity's on a narrow claim, read under the aircraft's
+                // tail index of its kind before it learns from it. The q_h learner reads the
+                // Gaussian quantile NIS: the shape is a claim, the track stays as it is.
+                let mut narrow = None;
+                let published = match (obs, g.on_grid) {
+                    (Observation::Position(o), _) => {
+                        let term = self.tails.nis(g.nis_horizontal);
+                        if self.params.tails.enabled {
+                            self.tails.learn(
+                                super::tails::along_track_z(&pred, &o.cov, &o.value),
+                                &self.params.tails,
+                            );
+                        }
+                        term
                     }
-                    term
-                } else {
-                    g.published_nis()
+                    (_, Some(og)) => {
+                        let residuals = og.residuals();
+                        let d2 = residuals.iter().map(|r| r * r).sum::<f64>();
+                        narrow = Some(Narrow {
+                            nis: d2,
+                            claim_var: og.claim_var(),
+                        });
+                        let term = self.velocity_tails.nis(d2);
+                        if self.params.velocity_tails.enabled {
+                            for r in residuals {
+                                self.velocity_tails.learn(r, &self.params.velocity_tails);
+                            }
+                        }
+                        term
+                    }
+                    _ => g.published_nis(),
                 };
                 self.steady_q.learn(
                     dt_s,
                     matches!(obs, Observation::Velocity(_) | Observation::Both(..)),
-                    g.on_grid.map(|og| Narrow {
-                        nis: published,
-                        claim_var: og.claim_var(),
-                    }),
+                    narrow,
                     self.params.cv.q_h_m2ps3,
                     &self.params.steady_q,
                 );
@@ -891,13 +916,14 @@ impl Tracker for HybridTracker {
     fn reset(&mut self) {
         let noise = self.noise;
         let outliers = self.outliers;
-        let tails = self.tails;
+        let (tails, velocity_tails) = (self.tails, self.velocity_tails);
         let lag = super::lag::kept_over_restart(self.lag.take());
         *self = Self::new(*self.params);
         self.noise = noise;
         self.noise.forget_position();
         self.outliers = outliers;
         self.tails = tails;
+        self.velocity_tails = velocity_tails;
         self.lag = lag;
     }
 

@@ -33,7 +33,7 @@ use super::models::{
 use super::noise::{local_up, BlockStat, NoiseLearner, NoiseParams};
 use super::outlier::{OutlierGate, OutlierParams};
 use super::quantised::OnGrid;
-use super::tails::{PositionTails, TailParams};
+use super::tails::{TailIndex, TailParams};
 use super::{
     Estimate, FlightMode, Lateral, Measurement, Observed, SpeedTrend, TrackError, Tracker,
     TurnDirection, VerticalTrend,
@@ -556,6 +556,9 @@ pub struct Imm {
     /// The most probable mode's term of the windowed NIS at the last step
     /// ([`Imm::published_nis`]).
     published_nis: f64,
+    /// The quantile residuals [`Imm::published_nis`] came from when it is a velocity
+    /// report's on a narrow claim ([`Imm::published_residuals`]); NaN otherwise.
+    published_residuals: [f64; 2],
     /// The CV model's innovation blocks at the last step, for [`super::noise`].
     cv_blocks: [BlockStat; 2],
     /// The CV model's along-track z of a position report at the last step, for
@@ -585,6 +588,7 @@ impl Imm {
             divergence_events: [0; N_MODES],
             nis: [f64::NAN; N_MODES],
             published_nis: f64::NAN,
+            published_residuals: [f64::NAN; 2],
             cv_blocks: [BlockStat::default(); 2],
             cv_along_z: f64::NAN,
             along_wanted: false,
@@ -794,6 +798,17 @@ impl Imm {
         self.published_nis
     }
 
+    /// The two quantile residuals of [`Imm::published_nis`] (east, then north given east,
+    /// in the grid's axes; [`super::quantised::OnGrid::residuals`]) when the last step's
+    /// term was a velocity report's on a narrow claim: what a tail index of the velocity
+    /// reports reads ([`super::tails`]). `None` for any other term.
+    pub fn published_residuals(&self) -> Option<[f64; 2]> {
+        self.published_residuals
+            .iter()
+            .all(|r| r.is_finite())
+            .then_some(self.published_residuals)
+    }
+
     /// Divergence events per mode over the estimator's life.
     pub fn divergence_events(&self) -> &[u64; N_MODES] {
         &self.divergence_events
@@ -983,9 +998,12 @@ impl Imm {
         // the order), unless no likelihood was finite.
         let best = self.most_probable().index();
         let gaussian = nis.get(best).copied().unwrap_or(f64::NAN);
-        self.published_nis = match best_grid {
-            Some((j, _, g)) if j == best => g.nis(),
-            _ => gaussian,
+        (self.published_nis, self.published_residuals) = match best_grid {
+            Some((j, _, g)) if j == best => {
+                let r = g.residuals();
+                (r.iter().map(|v| v * v).sum(), r)
+            }
+            _ => (gaussian, [f64::NAN; 2]),
         };
         self.velocity_correction_cov = corrections
             .iter()
@@ -1340,6 +1358,10 @@ pub struct ImmTrackerParams {
     /// aircraft's tail index ([`super::tails`]), learned from the CV model's along-track
     /// innovation while CV holds at least [`LEARN_CV_PROBABILITY`]. Default on.
     pub tails: TailParams,
+    /// The same for a velocity report on a narrow claim, its quantile residuals read under
+    /// the tail index of the aircraft's velocity reports, learned from them while CV holds
+    /// at least [`LEARN_CV_PROBABILITY`] and is the published mode. Default on.
+    pub velocity_tails: TailParams,
 }
 
 impl Default for ImmTrackerParams {
@@ -1352,6 +1374,7 @@ impl Default for ImmTrackerParams {
             learn_velocity_lag: true,
             outliers: OutlierParams::default(),
             tails: TailParams::default(),
+            velocity_tails: TailParams::default(),
         }
     }
 }
@@ -1458,7 +1481,9 @@ pub struct ImmTracker {
     /// Position reports set aside ([`super::outlier`]), kept across restarts.
     outliers: OutlierGate,
     /// The tail index of its position innovations ([`super::tails`]), kept across restarts.
-    tails: PositionTails,
+    tails: TailIndex,
+    /// The tail index of its velocity reports' quantile residuals, kept the same way.
+    velocity_tails: TailIndex,
     /// What its velocity reports vouch for: the IMM's word for "the velocity reports show
     /// the flight the held mode predicts", which the hybrid's CV filter takes from its gate.
     held_fit: HeldModeFit,
@@ -1483,7 +1508,8 @@ impl ImmTracker {
             noise: NoiseLearner::default(),
             lag: None,
             outliers: OutlierGate::default(),
-            tails: PositionTails::default(),
+            tails: TailIndex::default(),
+            velocity_tails: TailIndex::default(),
             held_fit: HeldModeFit::default(),
         }
     }
@@ -1565,11 +1591,12 @@ impl Tracker for ImmTracker {
         let noise = self.noise;
         let outliers = self.outliers;
         let lag = super::lag::kept_over_restart(self.lag.take());
-        let tails = self.tails;
+        let (tails, velocity_tails) = (self.tails, self.velocity_tails);
         *self = Self::new(self.params);
         self.noise = noise;
         self.outliers = outliers;
         self.tails = tails;
+        self.velocity_tails = velocity_tails;
         self.lag = lag;
     }
 
@@ -1631,16 +1658,28 @@ impl Tracker for ImmTracker {
                     }
                 }
                 self.init.advance(m.t_s);
-                // A position's term under the aircraft's tail index, read before it learns,
-                // where CV is the published mode (as the hybrid's CV filter: a manoeuvre's
-                // model error reads as what it is).
-                let published = if position_only && self.imm.most_probable() == ImmMode::Cv {
+                // A position's term, and a velocity's on a narrow claim, under the
+                // aircraft's tail index of its kind, read before it learns, where CV is the
+                // published mode (as the hybrid's CV filter: a manoeuvre's model error reads
+                // as what it is).
+                let cv_published = self.imm.most_probable() == ImmMode::Cv;
+                let residuals = self.imm.published_residuals().filter(|_| cv_published);
+                let published = if position_only && cv_published {
                     self.tails.nis(self.imm.published_nis())
+                } else if residuals.is_some() {
+                    self.velocity_tails.nis(self.imm.published_nis())
                 } else {
                     self.imm.published_nis()
                 };
                 if steady && position_only {
                     self.tails.learn(self.imm.cv_along_z(), &self.params.tails);
+                }
+                if let (true, true, Some(rs)) =
+                    (steady, self.params.velocity_tails.enabled, residuals)
+                {
+                    for r in rs {
+                        self.velocity_tails.learn(r, &self.params.velocity_tails);
+                    }
                 }
                 self.nis.push(
                     published,

@@ -46,7 +46,7 @@ use super::divergence::Prediction;
 use super::noise::local_up;
 use nalgebra::{Matrix3, Vector3};
 
-/// Tuning of [`PositionTails`].
+/// Tuning of [`TailIndex`].
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct TailParams {
     /// Learn and use ν; `false` reads every position term as Gaussian (ν = ∞). Default true.
@@ -88,7 +88,7 @@ const BISECTIONS: u32 = 20;
 
 /// An aircraft's learned tail index of its position innovations (module doc).
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct PositionTails {
+pub struct TailIndex {
     /// ln of the 50th and 90th percentiles of z².
     ln_low: f64,
     ln_high: f64,
@@ -100,7 +100,7 @@ pub struct PositionTails {
     since_solve: u16,
 }
 
-impl Default for PositionTails {
+impl Default for TailIndex {
     fn default() -> Self {
         Self {
             // χ²(1)'s: the squares of the normal's (1 + p)/2 quantiles.
@@ -113,7 +113,7 @@ impl Default for PositionTails {
     }
 }
 
-impl PositionTails {
+impl TailIndex {
     /// ν in force (∞ before the data says otherwise, or when not enabled).
     pub fn nu(&self) -> f64 {
         self.nu
@@ -282,7 +282,7 @@ mod tests {
     fn learn(nu: f64, along: f64, across: f64, n: usize, seed: u64) -> (f64, f64, f64) {
         let mut rng = StdRng::seed_from_u64(seed);
         let params = TailParams::default();
-        let mut tails = PositionTails::default();
+        let mut tails = TailIndex::default();
         let (mut sum, mut above, mut count) = (0.0, 0usize, 0usize);
         for k in 0..n {
             let (d2, z) = draw(&mut rng, nu, along, across);
@@ -397,13 +397,13 @@ mod tests {
     #[test]
     fn only_a_finite_non_zero_innovation_teaches() {
         let params = TailParams::default();
-        let mut tails = PositionTails::default();
+        let mut tails = TailIndex::default();
         for z in [f64::NAN, f64::INFINITY, f64::NEG_INFINITY, 0.0] {
             for _ in 0..100 {
                 tails.learn(z, &params);
             }
         }
-        assert_eq!(tails, PositionTails::default());
+        assert_eq!(tails, TailIndex::default());
         let off = TailParams {
             enabled: false,
             ..params
@@ -412,7 +412,7 @@ mod tests {
         for _ in 0..1000 {
             tails.learn(draw(&mut rng, 3.0, 1.0, 1.0).1, &off);
         }
-        assert_eq!(tails, PositionTails::default());
+        assert_eq!(tails, TailIndex::default());
         assert_eq!(tails.nis(9.0), 9.0);
     }
 }

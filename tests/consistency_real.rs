@@ -64,7 +64,7 @@ fn afr34zg_is_rarely_flagged() {
     for (tracker, nis_dof, sigma_m, in_band_pct) in [
         ("hybrid", (0.75, 1.1), (0.9, 1.6), (79.0, 87.0)),
         ("kalman-cv", (0.01, 0.08), (6.0, 9.0), (0.0, 15.0)),
-        ("imm", (0.45, 0.85), (1.0, 3.0), (48.0, 65.0)),
+        ("imm", (0.45, 0.85), (1.0, 3.0), (55.0, 72.0)),
     ] {
         let g = groups("afr34zg-cdg-tls.jsonl", 1000.0, tracker);
         let all = &g["all"];
@@ -132,15 +132,16 @@ fn lax_every_nacp_is_rarely_flagged() {
             2.5,
         );
     }
-    // The hybrid's NACp 10 aircraft: horizontal NIS per degree of freedom 0.67 on the
+    // The hybrid's NACp 10 aircraft: horizontal NIS per degree of freedom 0.85 on the
     // clock the aircraft show (1.8 on the nominal 270 frames/s, whose rate errors of ±30 %
-    // made positions and velocities disagree by metres per second).
+    // made positions and velocities disagree by metres per second; 0.78 with the velocity
+    // reports' terms read as Gaussian, `track::tails`).
     let g = groups("lax-messages.avr.txt", 270.0, "hybrid");
     within(
         "hybrid NACp 10 NIS/dof",
         g["10"].median_nis_per_dof(),
-        0.55,
-        0.8,
+        0.6,
+        0.95,
     );
 }
 
@@ -171,13 +172,15 @@ fn lax_declared_accuracy_is_a_bound() {
 /// before a position could be set aside in a turn, `track::outlier`; 80/75 and
 /// 59/42 before up to four positions in a row could be set aside, `track::outlier`; 81/78
 /// and 54/39 before λ's standard error was the samples' own scatter, `track::noise`); the track
-/// and its covariance are the same, update for update.
+/// and its covariance are the same, update for update. The velocity reports' terms are read
+/// as Gaussian in both runs (the next test reads them under their own tail).
 #[test]
 fn afr34zg_position_tails_change_the_claim_not_the_track() {
     let frames = afr34zg_frames();
     let run = |tracker: &str, tails: bool| {
         let mut config = Config::default_config().unwrap();
         config.tracker.hybrid.learn_position_tails = tails;
+        config.tracker.hybrid.learn_velocity_tails = false;
         let mut p = adsb_tracker::eval::bench::sync_pipeline(&config, tracker);
         let states: Vec<_> = frames
             .iter()
@@ -212,6 +215,56 @@ fn afr34zg_position_tails_change_the_claim_not_the_track() {
         assert!(gaussian_band.contains(&gaussian_in_band), "{tracker}");
         assert!(t_band.contains(&t_in_band), "{tracker}");
         assert!(t_in_band > gaussian_in_band + 3.0, "{tracker}");
+    }
+}
+
+/// LAX's velocity reports have a heavier tail about their claim than a Gaussian
+/// (`track::tails`, "Velocity reports"): most of its NACp 9 and 10 aircraft report to the
+/// knot on a claim narrower than two knots, and their quantile residuals' median sits near
+/// half of χ²(2)'s with a tail above it. Read under a Student-t of the aircraft's own
+/// velocity tail index, the hybrid's windowed NIS is in band on 65 % of NACp 10's steady
+/// updates (61 % read as Gaussian) and on 51 % of NACp 9's (44 %); the plain IMM's on 60 %
+/// (48 %) and 42 % (32 %). The tracks and their covariance are the same, update for update.
+#[test]
+fn lax_velocity_tails_change_the_claim_not_the_track() {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("fixtures")
+        .join("lax-messages.avr.txt");
+    let base = Config::default_config().unwrap();
+    let (frames, _) =
+        consistency::read_recording(&path, None, 270.0, base.decode.fit_untimed_clock).unwrap();
+    let run = |tracker: &str, tails: bool| {
+        let mut config = base.clone();
+        config.tracker.hybrid.learn_velocity_tails = tails;
+        let mut p = adsb_tracker::eval::bench::sync_pipeline(&config, tracker);
+        let states: Vec<_> = frames
+            .iter()
+            .filter_map(|f| p.push(f)?.state)
+            .map(|s| (s.t, s.lat, s.lon, s.pos_sigma_m, s.mode, s.diverging))
+            .collect();
+        let g = consistency::measure(&frames, &config, tracker);
+        let pct = |k: &str| g[k].nis_in_band_pct().unwrap_or(f64::NAN);
+        (states, pct("10"), pct("9"))
+    };
+    // (tracker, NACp 10's band read as Gaussian and as t, NACp 9's the same.)
+    for (tracker, g10, t10, g9, t9) in [
+        ("hybrid", 57.0..=65.0, 61.0..=69.0, 40.0..=49.0, 46.0..=56.0),
+        ("imm", 44.0..=53.0, 55.0..=64.0, 28.0..=37.0, 37.0..=47.0),
+    ] {
+        let (gaussian, gaussian10, gaussian9) = run(tracker, false);
+        let (t, tail10, tail9) = run(tracker, true);
+        assert_eq!(gaussian.len(), t.len(), "{tracker}");
+        assert!(gaussian == t, "{tracker}: an estimate moved");
+        eprintln!(
+            "{tracker} NIS in band, NACp 10: {gaussian10:.1} -> {tail10:.1} %, \
+             NACp 9: {gaussian9:.1} -> {tail9:.1} %"
+        );
+        assert!(g10.contains(&gaussian10), "{tracker} {gaussian10}");
+        assert!(t10.contains(&tail10), "{tracker} {tail10}");
+        assert!(g9.contains(&gaussian9), "{tracker} {gaussian9}");
+        assert!(t9.contains(&tail9), "{tracker} {tail9}");
+        assert!(tail10 > gaussian10 + 3.0, "{tracker}");
+        assert!(tail9 > gaussian9 + 5.0, "{tracker}");
     }
 }
 

@@ -40,7 +40,8 @@ fn what_an_aircraft_holds_stays_within_its_budget() {
         "{}",
         size_of::<HybridTracker>()
     );
-    assert!(size_of::<Imm>() <= 576, "{}", size_of::<Imm>());
+    // 16 bytes more since it keeps the quantile residuals of its published term.
+    assert!(size_of::<Imm>() <= 592, "{}", size_of::<Imm>());
     // The hybrid's velocity-lag learner, boxed on its first report: the sums of one 60 s
     // window and a few positions waiting for the next velocity report.
     assert!(

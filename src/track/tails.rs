@@ -1,4 +1,5 @@
-//! The shape of a position report's innovation, learned per aircraft (issue 10).
+//! The shape of a report's innovation, learned per aircraft (issue 10): a position's, and a
+//! rounded velocity's.
 //!
 //! The windowed NIS ([`super::nis`]) reads each report's term as χ²(2) when the filter is
 //! consistent, which is true for Gaussian innovations. A real aircraft's positions are not
@@ -39,8 +40,22 @@
 //! The hybrid's CV filter learns and uses it on its position reports, and the plain `imm`
 //! where CV is its published mode (learning from its CV model's innovation while CV holds
 //! 0.9, as it learns the noise): a manoeuvre's innovations are model error, which should
-//! read as what it is, and the velocity reports' terms are their bins' quantile residuals
-//! already.
+//! read as what it is.
+//!
+//! **Velocity reports.** A velocity report on a narrow claim (its spread under two 1-kt
+//! bins, [`super::quantised`]) has for its term the sum of its two quantile residuals
+//! squared, χ²(2) when the claim is right. Real ones have a tail too: on the LAX recording,
+//! the hybrid's CV-filter velocity terms had a median of 0.69 where χ²(2)'s is 1.39 and a
+//! mean of 1.5 (a probe of every update, not kept), the shape of a t of ν ≈ 4 with about
+//! the claimed variance. So each aircraft has a second index of the same kind, learned from
+//! those residuals (each a univariate N(0, 1) under the claim, so the same percentile ratio
+//! reads its ν at any scale), and a narrow report's term is read under it with
+//! [`t_nis`]: the residuals stand in for the standardised innovation, which is what they
+//! are without rounding. Through the bins the tail is read only in part: a claim half a
+//! bin wide hides most of it (module test
+//! `velocity_reports_learn_the_tail_of_their_quantile_residuals`). A wide claim (the simulator's NACv 2) keeps its Gaussian term, and
+//! the q_h learner ([`super::process_noise`]) keeps reading the Gaussian quantile NIS, so no
+//! estimate moves.
 
 use super::divergence::Prediction;
 use super::noise::local_up;
@@ -86,7 +101,8 @@ const SOLVE_EVERY: u16 = 32;
 /// Steps of the bisection on κ = 2/ν: κ to 3·10⁻⁷, ν to 10⁻⁴ of itself up to ν = 100.
 const BISECTIONS: u32 = 20;
 
-/// An aircraft's learned tail index of its position innovations (module doc).
+/// An aircraft's learned tail index of one kind of its innovations: its positions' along
+/// the track, or its velocity reports' quantile residuals (module doc).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct TailIndex {
     /// ln of the 50th and 90th percentiles of z².
@@ -126,8 +142,9 @@ impl TailIndex {
         t_nis(d2, self.nu)
     }
 
-    /// Learns from one position report's innovation along the track, standardised by its
-    /// predicted standard deviation there, `z` (ignored unless finite and non-zero).
+    /// Learns from one standardised innovation `z` (ignored unless finite and non-zero): a
+    /// position report's along the track over its predicted standard deviation there, or
+    /// one quantile residual of a velocity report.
     pub fn learn(&mut self, z: f64, params: &TailParams) {
         let y = (z * z).ln();
         if !(params.enabled && y.is_finite()) {
@@ -452,7 +469,12 @@ mod tests {
             }
         }
         let c = count as f64;
-        (tails.nu(), sum / c, above as f64 / c, gaussian_above as f64 / c)
+        (
+            tails.nu(),
+            sum / c,
+            above as f64 / c,
+            gaussian_above as f64 / c,
+        )
     }
 
     #[test]

@@ -570,7 +570,19 @@ impl HybridTracker {
                 self.velocity_correction_cov = *self.imm.velocity_correction_cov();
                 self.cv_divergence_run = 0;
                 self.stats.imm_updates += 1;
-                self.imm.published_nis()
+                // Where CV is the published mode, its term is a steady report's like the CV
+                // filter's and is read under the same two tail indices (which only the CV
+                // filter teaches); a manoeuvre's model error reads as what it is.
+                let nis = self.imm.published_nis();
+                if best != ImmMode::Cv {
+                    nis
+                } else if matches!(obs, Observation::Position(_)) {
+                    self.tails.nis(nis)
+                } else if self.imm.published_residuals().is_some() {
+                    self.velocity_tails.nis(nis)
+                } else {
+                    nis
+                }
             }
         };
         self.nis.push(nis, obs.horizontal_dof());

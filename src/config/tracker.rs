@@ -68,6 +68,8 @@ pub struct GateConfig {
     /// 0 disables the turn's end test.
     pub turn_end_sigmas: Option<f64>,
     pub along_track_accel_mps2: Option<f64>,
+    /// 0 disables the acceleration's hold by its own line.
+    pub accel_hold_sigmas: Option<f64>,
     pub accel_onset_reports: Option<usize>,
     pub accel_onset_reference_reports: Option<usize>,
     pub trend_window_reports: Option<usize>,
@@ -352,6 +354,10 @@ impl GateConfig {
         if let Some(v) = self.turn_end_sigmas {
             let v = check(&k("turn_end_sigmas"), v, 0.0, false, 100.0)?;
             p.turn_end_sigmas = (v > 0.0).then_some(v);
+        }
+        if let Some(v) = self.accel_hold_sigmas {
+            let v = check(&k("accel_hold_sigmas"), v, 0.0, false, 100.0)?;
+            p.accel_hold_sigmas = (v > 0.0).then_some(v);
         }
         if let Some(v) = self.trend_window_reports {
             p.trend_window_reports = count(&k("trend_window_reports"), v, 3, cap)?;
@@ -745,6 +751,12 @@ mod tests {
         assert_eq!(end("[tracker.gate]\nturn_end_sigmas = 3\n"), Some(3.0));
         assert_eq!(end("[tracker.gate]\nturn_end_sigmas = 0\n"), None);
         assert_eq!(end("[tracker.gate]\npreset = \"paper002\"\n"), None);
+        // The acceleration's hold by its own line: on by default at 3σ, or 0 for off.
+        let hold = |toml: &str| gate_of(toml).accel_hold_sigmas;
+        assert_eq!(hold(""), Some(3.0));
+        assert_eq!(hold("[tracker.gate]\naccel_hold_sigmas = 2.4\n"), Some(2.4));
+        assert_eq!(hold("[tracker.gate]\naccel_hold_sigmas = 0\n"), None);
+        assert_eq!(hold("[tracker.gate]\npreset = \"paper002\"\n"), None);
     }
 
     #[test]
@@ -761,6 +773,10 @@ mod tests {
             (
                 "[tracker.gate]\nturn_end_sigmas = -1.0\n",
                 "tracker.gate.turn_end_sigmas",
+            ),
+            (
+                "[tracker.gate]\naccel_hold_sigmas = -1.0\n",
+                "tracker.gate.accel_hold_sigmas",
             ),
             ("[tracker.gate]\nbogus = 1.0\n", "bogus"),
             (

@@ -1403,7 +1403,11 @@ impl Gate {
             if newest.measured {
                 let (t_first, y_first, sums) =
                     since.get_or_insert((newest.t_s, newest.speed_mps, LineSums::default()));
-                sums.add(newest.t_s - *t_first, newest.speed_mps - *y_first, newest.var_h);
+                sums.add(
+                    newest.t_s - *t_first,
+                    newest.speed_mps - *y_first,
+                    newest.var_h,
+                );
             }
             since
         } else {
@@ -2098,7 +2102,10 @@ mod tests {
             with[2],
             without[2]
         );
-        assert!(share(with) < share(without) / 3.0, "{with:?} vs {without:?}");
+        assert!(
+            share(with) < share(without) / 3.0,
+            "{with:?} vs {without:?}"
+        );
         // The price: its end, where the trend's slope must now fall 3σ under the line
         // (about 0.09 m/s²) where the release let go at 0.18, about 3.4 s later.
         assert!(with[2] < without[2] + 4.0, "{with:?} vs {without:?}");

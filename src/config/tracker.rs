@@ -74,6 +74,8 @@ pub struct GateConfig {
     pub accel_onset_reference_reports: Option<usize>,
     pub trend_window_reports: Option<usize>,
     pub vertical_rate_mps: Option<f64>,
+    /// 0 disables the climb or descent onset test.
+    pub vertical_onset_sigmas: Option<f64>,
     pub vertical_window_reports: Option<usize>,
     pub max_window_s: Option<f64>,
     pub significance_sigmas: Option<f64>,
@@ -358,6 +360,10 @@ impl GateConfig {
         if let Some(v) = self.accel_hold_sigmas {
             let v = check(&k("accel_hold_sigmas"), v, 0.0, false, 100.0)?;
             p.accel_hold_sigmas = (v > 0.0).then_some(v);
+        }
+        if let Some(v) = self.vertical_onset_sigmas {
+            let v = check(&k("vertical_onset_sigmas"), v, 0.0, false, 100.0)?;
+            p.vertical_onset_sigmas = (v > 0.0).then_some(v);
         }
         if let Some(v) = self.trend_window_reports {
             p.trend_window_reports = count(&k("trend_window_reports"), v, 3, cap)?;
@@ -757,6 +763,15 @@ mod tests {
         assert_eq!(hold("[tracker.gate]\naccel_hold_sigmas = 2.4\n"), Some(2.4));
         assert_eq!(hold("[tracker.gate]\naccel_hold_sigmas = 0\n"), None);
         assert_eq!(hold("[tracker.gate]\npreset = \"paper002\"\n"), None);
+        // The climb or descent onset test: on by default at 4.5σ, or 0 for off.
+        let onset = |toml: &str| gate_of(toml).vertical_onset_sigmas;
+        assert_eq!(onset(""), Some(4.5));
+        assert_eq!(
+            onset("[tracker.gate]\nvertical_onset_sigmas = 4\n"),
+            Some(4.0)
+        );
+        assert_eq!(onset("[tracker.gate]\nvertical_onset_sigmas = 0\n"), None);
+        assert_eq!(onset("[tracker.gate]\npreset = \"paper002\"\n"), None);
     }
 
     #[test]
@@ -777,6 +792,10 @@ mod tests {
             (
                 "[tracker.gate]\naccel_hold_sigmas = -1.0\n",
                 "tracker.gate.accel_hold_sigmas",
+            ),
+            (
+                "[tracker.gate]\nvertical_onset_sigmas = -1.0\n",
+                "tracker.gate.vertical_onset_sigmas",
             ),
             ("[tracker.gate]\nbogus = 1.0\n", "bogus"),
             (

@@ -1176,10 +1176,15 @@ mod tests {
                 t += h;
             }
             let l = leg_at(t);
+            // Flown over a sphere, as the gate reads it (`noise::local_up`): the leg's
+            // level is level to the local vertical, which tilts by d/R from the frame's
+            // (at 40 km, 200 m/s along the tangent plane is a 1.3 m/s climb).
+            let r = super::super::noise::EARTH_RADIUS_M;
+            let v = vel(a, s, l.vrate_mps);
             out.push(Truth {
                 t_s: target,
-                pos: p,
-                vel: vel(a, s, l.vrate_mps),
+                pos: Vector3::new(p.x, p.y, p.z - (p.x * p.x + p.y * p.y) / (2.0 * r)),
+                vel: Vector3::new(v.x, v.y, v.z - (p.x * v.x + p.y * v.y) / r),
                 leg: l,
             });
         }
@@ -1942,11 +1947,11 @@ mod tests {
             100.0 * paper_labels,
             100.0 * paper_axes
         );
-        // The speed axis lags by the 24-report acceleration window (chosen for NACv 2 noise,
-        // see GateParams::default), which costs the axes a few points at each speed change
-        // of this low-noise profile: 85.5 % measured (96.6 % with a 12-report window, which
-        // misses the gentle accelerations of the NACv-2 departure scenario).
-        assert!(labels >= 0.90 && axes >= 0.85, "{labels} {axes}");
+        // 94.5 % and 94.5 % measured (10 runs). Before the truth flew over a sphere (`fly`)
+        // the axes were right 86.6 %: along the frame's tangent plane, 40 km out at 200 m/s,
+        // level flight is a 1.3 m/s climb to the local vertical the gate reads, and the
+        // climb onset test's newest reports saw it (labels 90.6 %, axes 84.9 %).
+        assert!(labels >= 0.93 && axes >= 0.93, "{labels} {axes}");
     }
 
     #[test]

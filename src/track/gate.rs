@@ -1463,7 +1463,8 @@ impl Gate {
                     .rev()
                     .filter(|s| s.measured && s.var_u.is_finite())
                     .map(|s| (s.vu_mps, learned_var_u.unwrap_or(s.var_u)));
-                if let Some(m) = vertical_onset(newest_first, p.vertical_rate_mps, k) {
+                // `n` measured reports in the window, counted above.
+                if let Some(m) = vertical_onset(newest_first, n as usize, p.vertical_rate_mps, k) {
                     r.flags.vertical = true;
                     if m.signum() != mean.signum() {
                         r.vertical_rate_mps = Some(m);
@@ -1563,18 +1564,18 @@ pub const VERTICAL_ONSET_SIGMAS: f64 = 4.5;
 const VERTICAL_ONSET_MIN_REPORTS: usize = 2;
 
 /// The climb or descent onset test ([`GateParams::vertical_onset_sigmas`]) over the
-/// window's measured (rate m/s, variance (m/s)²) pairs, newest first: the mean of the
+/// window's `n` measured (rate m/s, variance (m/s)²) pairs, newest first: the mean of the
 /// newest m, for the smallest m in 2..n−1 (the whole window is the window test's own)
 /// whose |mean| is above `threshold` and above k σ of itself and whose every rate is on
 /// the mean's side of level. That last condition is what a single gust or rounded-up
 /// report cannot meet with a level one beside it; a climb's reports all can.
 fn vertical_onset(
-    newest_first: impl Iterator<Item = (f64, f64)> + Clone,
+    newest_first: impl Iterator<Item = (f64, f64)>,
+    n: usize,
     threshold: Option<f64>,
     k: f64,
 ) -> Option<f64> {
     let lambda = threshold?;
-    let n = newest_first.clone().count();
     let (mut m, mut sum, mut var) = (0usize, 0.0, 0.0);
     let (mut lowest, mut highest) = (f64::INFINITY, f64::NEG_INFINITY);
     for (rate, v) in newest_first.take(n.saturating_sub(1)) {

@@ -1179,7 +1179,7 @@ mod tests {
             // Flown over a sphere, as the gate reads it (`noise::local_up`): the leg's
             // level is level to the local vertical, which tilts by d/R from the frame's
             // (at 40 km, 200 m/s along the tangent plane is a 1.3 m/s climb).
-            let r = super::super::noise::EARTH_RADIUS_M;
+            let r = EARTH_RADIUS_M;
             let v = vel(a, s, l.vrate_mps);
             out.push(Truth {
                 t_s: target,

@@ -210,6 +210,9 @@ pub struct HybridConfig {
     /// Let an aircraft's innovations overrule a declared accuracy they contradict
     /// (`NoiseParams::prior_conflict`).
     pub noise_prior_conflict: bool,
+    /// Weight per report of the running mean of the velocity innovation that the learner
+    /// centres on (`NoiseParams::velocity_centre_weight`), in [0, 1]; 0: not centred.
+    pub noise_velocity_centre_weight: f64,
     /// Position reports out of their time set aside (`track::outlier`): the horizontal NIS
     /// above which (0: never), how many in a row at most, and below which share of recent
     /// position reports above it.
@@ -649,6 +652,13 @@ impl TrackerConfig {
                 1.0e6,
             )?,
             prior_conflict: h.noise_prior_conflict,
+            velocity_centre_weight: check(
+                "tracker.hybrid.noise_velocity_centre_weight",
+                h.noise_velocity_centre_weight,
+                0.0,
+                false,
+                1.0,
+            )?,
             ..NoiseParams::default()
         })
     }
@@ -711,6 +721,21 @@ mod tests {
         };
         assert_eq!(robust(""), 5.0);
         assert_eq!(robust("[tracker.hybrid]\nnoise_outlier_ratio = 8.0\n"), 8.0);
+        // The velocity innovation's running mean, for hybrid and imm alike.
+        let centre = |toml: &str| {
+            let t = Config::from_toml_str(toml).unwrap().tracker;
+            let h = t.hybrid_params(false).unwrap().noise.velocity_centre_weight;
+            assert_eq!(
+                h,
+                t.imm_tracker_params().unwrap().noise.velocity_centre_weight
+            );
+            h
+        };
+        assert_eq!(centre(""), 0.2);
+        assert_eq!(
+            centre("[tracker.hybrid]\nnoise_velocity_centre_weight = 0\n"),
+            0.0
+        );
         assert_eq!(c.cv_params().unwrap().divergence_r, 2.0);
         // The transition matrix built from them: CV kept over 1 s with exp(-1/60).
         let imm = crate::track::imm::Imm::new(p.imm);
@@ -839,6 +864,10 @@ mod tests {
             (
                 "[tracker.hybrid]\nentry_probability = 1.5\n",
                 "tracker.hybrid.entry_probability",
+            ),
+            (
+                "[tracker.hybrid]\nnoise_velocity_centre_weight = 1.5\n",
+                "tracker.hybrid.noise_velocity_centre_weight",
             ),
         ];
         crate::config::assert_refused_naming(&cases);

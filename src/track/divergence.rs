@@ -257,10 +257,16 @@ fn block_check<const N: usize, const M: usize>(
 ) -> (BlockStat, Option<f64>) {
     let (mut e2, mut tr_s, mut tr_r, mut tr_hqh, mut tr_hfpfh) = (0.0, 0.0, 0.0, 0.0, 0.0);
     let mut horizontal = BlockStat::default();
+    let mut e_h = [0.0; 2];
     let mut any = false;
     for i in 0..3 {
         if i == 2 {
-            horizontal = BlockStat { e2, tr_s, tr_r };
+            horizontal = BlockStat {
+                e2,
+                tr_s,
+                tr_r,
+                e_h,
+            };
         }
         let (m, s) = (start + i, state_offset + i);
         let (Some(&e), Some(&s_mm), Some(&r_mm)) =
@@ -272,6 +278,9 @@ fn block_check<const N: usize, const M: usize>(
             continue;
         }
         any = true;
+        if let Some(c) = e_h.get_mut(i) {
+            *c = e;
+        }
         e2 += e * e;
         tr_s += s_mm;
         tr_r += r_mm;

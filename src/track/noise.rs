@@ -567,6 +567,21 @@ impl NoiseLearner {
 mod tests {
     use super::*;
 
+    /// Deterministic standard normal samples from `seed` (Box-Muller on a xorshift).
+    fn normals(seed: u64) -> impl FnMut() -> f64 {
+        let mut state = seed;
+        let mut uniform = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 11) as f64 / (1u64 << 53) as f64
+        };
+        move || {
+            let (u1, u2) = (uniform().max(1e-300), uniform());
+            (-2.0 * u1.ln()).sqrt() * (2.0 * std::f64::consts::PI * u2).cos()
+        }
+    }
+
     /// A scalar random walk of position measured with noise σ_true while the filter is told
     /// σ₀: the learned λ must approach (σ_true/σ₀)², within the bounds.
     fn learned_lambda(sigma_true: f64, sigma0: f64, steps: usize) -> f64 {
@@ -593,18 +608,7 @@ mod tests {
         outlier_every: usize,
         params: &NoiseParams,
     ) -> NoiseScale {
-        // Deterministic normal samples (Box-Muller on a xorshift).
-        let mut state = 0x9E37_79B9_7F4A_7C15_u64;
-        let mut uniform = || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            (state >> 11) as f64 / (1u64 << 53) as f64
-        };
-        let mut normal = || {
-            let (u1, u2) = (uniform().max(1e-300), uniform());
-            (-2.0 * u1.ln()).sqrt() * (2.0 * std::f64::consts::PI * u2).cos()
-        };
+        let mut normal = normals(0x9E37_79B9_7F4A_7C15_u64);
         let mut scale = NoiseScale::default();
         // A 1-D Kalman filter on a constant, three identical axes.
         let (mut x, mut p) = (0.0_f64, 1.0e6_f64);
@@ -949,17 +953,7 @@ mod tests {
             velocity_centre_weight: centre,
             ..NoiseParams::default()
         };
-        let mut state = 0x2545_F491_4F6C_DD1D_u64;
-        let mut uniform = || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            (state >> 11) as f64 / (1u64 << 53) as f64
-        };
-        let mut normal = || {
-            let (u1, u2) = (uniform().max(1e-300), uniform());
-            (-2.0 * u1.ln()).sqrt() * (2.0 * std::f64::consts::PI * u2).cos()
-        };
+        let mut normal = normals(0x2545_F491_4F6C_DD1D_u64);
         let (sigma, sigma0, q) = (0.1, 1.0, 1.0e-4);
         let mut learner = NoiseLearner {
             velocity_declared: true,
@@ -1025,17 +1019,7 @@ mod tests {
     /// mean, and centred away.
     #[test]
     fn the_centred_square_is_unbiased() {
-        let mut state = 0x9E37_79B9_7F4A_7C15_u64;
-        let mut uniform = || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            (state >> 11) as f64 / (1u64 << 53) as f64
-        };
-        let mut normal = || {
-            let (u1, u2) = (uniform().max(1e-300), uniform());
-            (-2.0 * u1.ln()).sqrt() * (2.0 * std::f64::consts::PI * u2).cos()
-        };
+        let mut normal = normals(0x9E37_79B9_7F4A_7C15_u64);
         for alpha in [0.05, 0.2, 0.5, 1.0] {
             let mut mean = InnovationMean::default();
             let (mut sum, n) = (0.0, 40_000);

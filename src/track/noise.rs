@@ -214,7 +214,7 @@ impl InnovationMean {
     /// `alpha` is not in (0, 1] or the block says nothing about R
     /// ([`BlockStat::informative`]), and on the first sample (no mean yet).
     pub fn centre(&mut self, stat: &BlockStat, alpha: f64) -> BlockStat {
-        if !((0.0..=1.0).contains(&alpha) && alpha > 0.0 && stat.informative()) {
+        if !(alpha > 0.0 && alpha <= 1.0 && stat.informative()) {
             return *stat;
         }
         let [m_e, m_n] = self.mean;
@@ -979,7 +979,7 @@ mod tests {
             if k >= 1000 {
                 raw += stat.e2;
                 let mut probe = learner.velocity_mean;
-                centred += probe.centre(&stat, centre.max(f64::MIN_POSITIVE)).e2;
+                centred += probe.centre(&stat, centre).e2;
             }
             learner.learn(&BlockStat::default(), &stat, &params);
             let gain = p / (p + r);

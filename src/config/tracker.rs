@@ -755,7 +755,7 @@ mod tests {
             let t = Config::from_toml_str(toml).unwrap().tracker;
             let h = t.hybrid_params(false).unwrap().noise;
             let imm = t.imm_tracker_params().unwrap().noise.window;
-            assert_eq!(imm, IMM_NOISE_WINDOW_REPORTS);
+            assert_eq!(imm, super::IMM_NOISE_WINDOW_REPORTS);
             (h.window, h.white_window)
         };
         assert_eq!(window(""), (100.0, 100.0));

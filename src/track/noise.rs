@@ -110,10 +110,10 @@ pub struct NoiseParams {
     /// Reports in covariance matching's exponential window, for λ of the position and the
     /// velocity reports. Default 100 (50 s at 2 Hz; `tracker.hybrid.noise_window_reports`).
     ///
-    /// Shorter would suit a real aircraft: its noise is not one constant: near an airport its
-    /// steady legs last tens of seconds between manoeuvres (the filter learns only on
-    /// them), and on LAX, with 100, an aircraft's velocity λ was still falling from the
-    /// declared bound a minute into a leg, its windows of the NIS below their band (a
+    /// A real aircraft's noise is not one constant, and shorter would follow it better: near
+    /// an airport its steady legs last tens of seconds between manoeuvres (the filter learns
+    /// only on them), and on LAX, with 100, an aircraft's velocity λ was still falling from
+    /// the declared bound well into a leg, its windows of the NIS below their band (a
     /// probe, docs/evaluation.md "A shorter memory": λ 0.6 → 0.49 over 15 s at −0.7 % a
     /// report, the data saying 0.05). Measured (hybrid, steady windowed NIS in band): LAX
     /// 67.0 % at 100, 68.8 % with 30 for the velocities alone, 71.2 % with 30 for both;
@@ -364,7 +364,7 @@ impl NoiseScale {
         } else {
             prior_weight
         };
-        self.push(sample, params, prior_weight);
+        self.push(sample, params, prior_weight, params.window);
         if !self.conflict
             && may_conflict
             && prior_weight > CONFLICT_PRIOR_WEIGHT
@@ -381,7 +381,7 @@ impl NoiseScale {
 
     /// Learns from one sample of λ itself (an estimate of the noise's variance over the
     /// declared), winsorised at `outlier_ratio` times the current λ: what
-    /// [`NoiseLearner::learn_position_step`] feeds.
+    /// [`NoiseLearner::learn_position_step`] feeds, over [`NoiseParams::white_window`].
     fn learn_ratio(&mut self, sample: f64, params: &NoiseParams, prior_weight: f64) {
         if !params.enabled || !sample.is_finite() || self.lambda <= 0.0 {
             return;
@@ -390,14 +390,14 @@ impl NoiseScale {
         let sample = sample
             .min(params.outlier_ratio * self.lambda)
             .clamp(lo, params.max_scale);
-        self.push(sample, params, prior_weight);
+        self.push(sample, params, prior_weight, params.white_window);
     }
 
     /// Adds a sample (already winsorised and bounded) to the mean of (`prior_weight` × 1,
-    /// samples...), forgetting beyond the window.
-    fn push(&mut self, sample: f64, params: &NoiseParams, prior_weight: f64) {
+    /// samples...), forgetting beyond `window` reports.
+    fn push(&mut self, sample: f64, params: &NoiseParams, prior_weight: f64, window: f64) {
         let lo = params.min_scale.min(params.max_scale);
-        self.n = (self.n + 1.0).min(params.window);
+        self.n = (self.n + 1.0).min(window);
         let weight = 1.0 / (self.n + prior_weight.max(0.0));
         // Welford's update of a mean and variance, with the window's weight 1/n (West 1979,
         // "Updating mean and variance estimates", CACM 22(9)).
@@ -513,12 +513,8 @@ impl NoiseLearner {
                 let d = pos_m - p0 - vel_mps * dt;
                 let d_h2 = d.norm_squared() - d.dot(up).powi(2);
                 let sample = d_h2 / (4.0 * self.declared_pos_var_m2);
-                let white = NoiseParams {
-                    window: params.white_window,
-                    ..*params
-                };
                 self.white_position
-                    .learn_ratio(sample, &white, params.prior_weight);
+                    .learn_ratio(sample, params, params.prior_weight);
             }
         }
         self.last_position = Some((t_s, *pos_m));
@@ -676,8 +672,9 @@ mod tests {
     /// and the factor applied sat at about 4 λ (LAX: λ 0.036, applied 0.142).
     #[test]
     fn the_applied_factor_follows_a_learned_fall() {
-        // At the default window (30) and at the 100 this test was written for: the shorter
-        // window's standard error is √(100/30) times larger, and so is the shrinkage.
+        // At the default window (100) and at 30 (docs/evaluation.md, "A shorter memory"):
+        // the shorter window's standard error is √(100/30) times larger, and so is the
+        // shrinkage.
         for (window, within) in [(30.0, 1.5), (100.0, 1.25)] {
             applied_factor_follows_a_learned_fall(window, within);
         }
@@ -733,8 +730,8 @@ mod tests {
             4.0,
             200,
             0,
-            // The window of 100 this was measured with; at 30 the prior fades within 40
-            // reports whatever its weight.
+            // The window of 100 this was measured with, whatever the default: at 30 the
+            // prior fades within 40 reports whatever its weight.
             &NoiseParams {
                 prior_conflict: false,
                 window: 100.0,

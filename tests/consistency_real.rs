@@ -167,8 +167,12 @@ fn lax_declared_accuracy_is_a_bound() {
 
 /// AFR34ZG's positions have a heavier tail about their prediction than a Gaussian
 /// (`track::tails`): read under a Student-t of the aircraft's own tail index, with the
-/// filter's covariance, the hybrid's windowed NIS is in band on 84 % of its steady updates
-/// where the Gaussian reading gives 81 %, the IMM's on 60 % where it gives 43 % (82/77 before
+/// filter's covariance, the IMM's windowed NIS is in band on 60 % of its steady updates
+/// where the Gaussian reading gives 43 %. The hybrid's gained 3 points (84 % where the
+/// Gaussian reading gave 81 %) until its noise windows were cut from 100 reports to 30
+/// (`track::noise::NoiseParams::window`); since then it reads 83 % either way: the shorter
+/// memory follows the noise the tail was standing in for (on LAX the position tails still
+/// take the hybrid's steady windows in band from 67.8 to 71.2 %). (82/77 before
 /// the velocity innovation was centred on its running mean, `track::noise::InnovationMean`;
 /// 83/78 before a position could be set aside in a turn, `track::outlier`; 80/75 and
 /// 59/42 before up to four positions in a row could be set aside, `track::outlier`; 81/78
@@ -201,10 +205,10 @@ fn afr34zg_position_tails_change_the_claim_not_the_track() {
         let g = consistency::measure(&frames, &config, tracker);
         (states, g["all"].nis_in_band_pct().unwrap_or(f64::NAN))
     };
-    // (tracker, band read as Gaussian, band read as t.)
-    for (tracker, gaussian_band, t_band) in [
-        ("hybrid", 76.0..=86.0, 80.0..=88.0),
-        ("imm", 34.0..=45.0, 50.0..=63.0),
+    // (tracker, band read as Gaussian, band read as t, the least gain of the t reading.)
+    for (tracker, gaussian_band, t_band, gain) in [
+        ("hybrid", 78.0..=87.0, 78.0..=87.0, -1.0),
+        ("imm", 34.0..=45.0, 50.0..=63.0, 3.0),
     ] {
         let (gaussian, gaussian_in_band) = run(tracker, false);
         let (t, t_in_band) = run(tracker, true);
@@ -215,7 +219,7 @@ fn afr34zg_position_tails_change_the_claim_not_the_track() {
         );
         assert!(gaussian_band.contains(&gaussian_in_band), "{tracker}");
         assert!(t_band.contains(&t_in_band), "{tracker}");
-        assert!(t_in_band > gaussian_in_band + 3.0, "{tracker}");
+        assert!(t_in_band > gaussian_in_band + gain, "{tracker}");
     }
 }
 
@@ -223,10 +227,12 @@ fn afr34zg_position_tails_change_the_claim_not_the_track() {
 /// (`track::tails`, "Velocity reports"): most of its NACp 9 and 10 aircraft report to the
 /// knot on a claim narrower than two knots, and their quantile residuals' median sits near
 /// half of χ²(2)'s with a tail above it. Read under a Student-t of the aircraft's own
-/// velocity tail index, the hybrid's windowed NIS is in band on 69 % of NACp 10's steady
-/// updates (64 % read as Gaussian) and on 64 % of NACp 9's (52 %); the plain IMM's on 61 %
-/// (49 %) and 42 % (32 %). (Before the velocity innovation was centred on its running mean,
-/// `track::noise::InnovationMean`: the hybrid's 65/61 % and 51/44 %.) The tracks and their
+/// velocity tail index, the hybrid's windowed NIS is in band on 72 % of NACp 10's steady
+/// updates (68.5 % read as Gaussian) and on 69 % of NACp 9's (60.5 %); the plain IMM's on
+/// 61 % (49 %) and 42 % (32 %). (With the hybrid's noise windows at 100 reports rather than
+/// 30, `track::noise::NoiseParams::window`: 69/64 % and 64/52 %. Before the velocity
+/// innovation was centred on its running mean, `track::noise::InnovationMean`: the
+/// hybrid's 65/61 % and 51/44 %.) The tracks and their
 /// covariance are the same, update for update.
 #[test]
 fn lax_velocity_tails_change_the_claim_not_the_track() {
@@ -251,7 +257,7 @@ fn lax_velocity_tails_change_the_claim_not_the_track() {
     };
     // (tracker, NACp 10's band read as Gaussian and as t, NACp 9's the same.)
     for (tracker, g10, t10, g9, t9) in [
-        ("hybrid", 60.0..=69.0, 64.0..=73.0, 46.0..=56.0, 58.0..=68.0),
+        ("hybrid", 64.0..=73.0, 67.0..=77.0, 55.0..=65.0, 64.0..=74.0),
         ("imm", 44.0..=53.0, 55.0..=64.0, 28.0..=37.0, 37.0..=47.0),
     ] {
         let (gaussian, gaussian10, gaussian9) = run(tracker, false);
@@ -346,6 +352,12 @@ fn afr34zg_velocities_lag_its_positions_by_about_a_second() {
 /// current (137 CT updates), 3.33 learnt, the lags given the same. So the `imm`'s
 /// figure is read over the lags given: at least half of them under the one taken as
 /// current, the best under 2.6, the learnt one inside their span.
+///
+/// Since the hybrid's noise windows are 30 reports rather than 100
+/// (`track::noise::NoiseParams::window`), its figures are 3.44, 3.01, 2.06 (623 CT
+/// updates): the noise learned over the short steady legs between the turns is smaller
+/// when a turn begins, and the learnt lag, still taught by the departure's turns, takes the
+/// turns' windows less far down than the lag given for the whole flight.
 #[test]
 fn afr34zg_turns_are_consistent_with_the_velocity_lag() {
     let frames = afr34zg_frames();
@@ -374,7 +386,7 @@ fn afr34zg_turns_are_consistent_with_the_velocity_lag() {
     eprintln!("{report}");
     assert!(n > 500, "{report}");
     assert!(current > 3.1, "{report}");
-    assert!(learnt < 2.9, "{report}");
+    assert!(learnt < 3.2 && learnt < current - 0.3, "{report}");
     assert!((1.4..2.4).contains(&given), "{report}");
     // The IMM: its figure swings with the lag given (module doc above), so it is read over
     // lags given from 1.04 to 1.11 s.

@@ -530,6 +530,11 @@ fn repeating_velocity_reports_show_the_velocity_caution() {
 /// claim five times the error (ANEES 0.37, 100 runs); learned, it comes to 2.03 (20 runs),
 /// the windowed NIS in band from 49 to 69 % of the time, turn onsets 1.57 -> 1.34 s; the
 /// position's ANEES 4.30 -> 4.47 and RMSE 7.1 -> 7.2 m, a little worse.
+/// With the 30-report covariance-matching windows (the default since 2026-12-06; 100 before)
+/// the trade is a little steeper, 10 runs: position ANEES 3.81 -> 4.14 (3.84 -> 4.06 at 100),
+/// RMSE 6.66 -> 6.90 m (6.7 -> 6.8), for a velocity ANEES 0.37 -> 1.93 (-> 1.80) and a
+/// windowed NIS in band 55 -> 77 % (53 -> 74): the learned q_h follows a shorter memory of
+/// the velocity residuals, and the position follows the velocity's integral more.
 /// On `airliner-nacp10` (0.3 m/s of velocity noise) it moves nothing that matters.
 #[test]
 fn learned_steady_q_makes_the_velocity_claim_honest() {
@@ -564,11 +569,15 @@ fn learned_steady_q_makes_the_velocity_claim_honest() {
     assert!(vel_anees(&gnss_off) < 0.6, "{report}");
     assert!((1.5..2.6).contains(&vel_anees(&gnss_on)), "{report}");
     assert!(nis(&gnss_on) > nis(&gnss_off) + 10.0, "{report}");
-    assert!(pos_anees(&gnss_on) < pos_anees(&gnss_off) + 0.3, "{report}");
+    assert!(
+        pos_anees(&gnss_on) < pos_anees(&gnss_off) + 0.45,
+        "{report}"
+    );
     // The position follows the velocity's integral more, whose held rounding error is the
-    // airliner's (docs/evaluation.md: 7.1 -> 7.2 m over 100 runs, 6.69 -> 6.82 m here).
+    // airliner's (docs/evaluation.md: 7.1 -> 7.2 m over 100 runs; 6.66 -> 6.90 m here at the
+    // 30-report windows, 6.69 -> 6.82 m at 100).
     for (a, b) in [(&gnss_on, &gnss_off), (&white_on, &white_off)] {
-        assert!(rmse(a, "all") < rmse(b, "all") + 0.2, "{report}");
+        assert!(rmse(a, "all") < rmse(b, "all") + 0.35, "{report}");
         assert!(rmse(a, "CT") < rmse(b, "CT") + 0.1, "{report}");
     }
     assert!(

@@ -213,9 +213,11 @@ pub struct HybridConfig {
     /// Weight per report of the running mean of the velocity innovation that the learner
     /// centres on (`NoiseParams::velocity_centre_weight`), in [0, 1]; 0: not centred.
     pub noise_velocity_centre_weight: f64,
-    /// Reports in covariance matching's exponential window (`NoiseParams::window`), at
-    /// least 1.
+    /// Reports in covariance matching's exponential window for the position reports
+    /// (`NoiseParams::window`), at least 1.
     pub noise_window_reports: f64,
+    /// The same for the velocity reports (`NoiseParams::velocity_window`), at least 1.
+    pub velocity_noise_window_reports: f64,
     /// Position reports out of their time set aside (`track::outlier`): the horizontal NIS
     /// above which (0: never), how many in a row at most, and below which share of recent
     /// position reports above it.
@@ -224,8 +226,7 @@ pub struct HybridConfig {
     pub outlier_max_share: f64,
 }
 
-/// The plain `imm`'s covariance-matching window, reports ([`NoiseParams::window`]).
-pub const IMM_NOISE_WINDOW_REPORTS: f64 = 100.0;
+pub use crate::track::imm::IMM_NOISE_WINDOW_REPORTS;
 
 /// `v` finite and within `lo..=hi` (`lo_open`: `lo` itself excluded).
 fn check(key: &str, v: f64, lo: f64, lo_open: bool, hi: f64) -> Result<f64, ConfigError> {
@@ -521,11 +522,11 @@ impl TrackerConfig {
             ..ImmTrackerParams::default()
         };
         p.init.max_gap_s = self.max_gap_s;
-        // The plain IMM keeps a window of 100 (`noise_window_reports` is the hybrid's): it
-        // learns only while its CV mode holds 0.9, and at 30 AFR34ZG's steady windows of
-        // its NIS fell from 65.6 to 52.0 % in band (docs/evaluation.md, "A shorter memory").
+        // The plain IMM keeps its own window (`noise_window_reports` and
+        // `velocity_noise_window_reports` are the hybrid's; IMM_NOISE_WINDOW_REPORTS says why).
         p.noise = NoiseParams {
             window: IMM_NOISE_WINDOW_REPORTS,
+            velocity_window: IMM_NOISE_WINDOW_REPORTS,
             ..self.noise_params()?
         };
         p.learn_velocity_lag = self.hybrid.learn_velocity_lag;
@@ -671,6 +672,13 @@ impl TrackerConfig {
                 false,
                 1.0e6,
             )?,
+            velocity_window: check(
+                "tracker.hybrid.velocity_noise_window_reports",
+                h.velocity_noise_window_reports,
+                1.0,
+                false,
+                1.0e6,
+            )?,
             velocity_centre_weight: check(
                 "tracker.hybrid.noise_velocity_centre_weight",
                 h.noise_velocity_centre_weight,
@@ -754,14 +762,19 @@ mod tests {
         let window = |toml: &str| {
             let t = Config::from_toml_str(toml).unwrap().tracker;
             let h = t.hybrid_params(false).unwrap().noise;
-            let imm = t.imm_tracker_params().unwrap().noise.window;
-            assert_eq!(imm, super::IMM_NOISE_WINDOW_REPORTS);
-            (h.window, h.white_window)
+            let imm = t.imm_tracker_params().unwrap().noise;
+            assert_eq!(imm.window, super::IMM_NOISE_WINDOW_REPORTS);
+            assert_eq!(imm.velocity_window, super::IMM_NOISE_WINDOW_REPORTS);
+            (h.window, h.velocity_window, h.white_window)
         };
-        assert_eq!(window(""), (100.0, 100.0));
+        assert_eq!(window(""), (30.0, 30.0, 100.0));
         assert_eq!(
-            window("[tracker.hybrid]\nnoise_window_reports = 30\n"),
-            (30.0, 100.0)
+            window("[tracker.hybrid]\nnoise_window_reports = 100\n"),
+            (100.0, 30.0, 100.0)
+        );
+        assert_eq!(
+            window("[tracker.hybrid]\nvelocity_noise_window_reports = 50\n"),
+            (30.0, 50.0, 100.0)
         );
         assert_eq!(
             centre("[tracker.hybrid]\nnoise_velocity_centre_weight = 0\n"),
@@ -903,6 +916,10 @@ mod tests {
             (
                 "[tracker.hybrid]\nnoise_window_reports = 0.5\n",
                 "tracker.hybrid.noise_window_reports",
+            ),
+            (
+                "[tracker.hybrid]\nvelocity_noise_window_reports = 0\n",
+                "tracker.hybrid.velocity_noise_window_reports",
             ),
         ];
         crate::config::assert_refused_naming(&cases);

@@ -1620,9 +1620,12 @@ mod tests {
         let runs = runs(2, 10);
         let r = paper_monte_carlo(Feed::Alternating, runs, HybridParams::default());
         r.report("alternating position / velocity reports", runs);
-        // Straight legs: the same measurement-limited floor as the CV filter and the IMM.
-        assert!(r.hybrid.pos(STRAIGHT) <= 1.002 * r.cv_plain.pos(STRAIGHT));
-        assert!(r.hybrid.pos(STRAIGHT) <= 1.002 * r.imm.pos(STRAIGHT));
+        // Straight legs: the same measurement-limited floor as the CV filter and the IMM,
+        // within the scatter of the learned noise about the declared one (as in the joint
+        // feed above): 0.2 % with the hybrid's window of 30 reports against the IMM's 100
+        // (3.181 vs 3.174 m on 10 runs; under 0.2 % when both were 100).
+        assert!(r.hybrid.pos(STRAIGHT) <= 1.004 * r.cv_plain.pos(STRAIGHT));
+        assert!(r.hybrid.pos(STRAIGHT) <= 1.004 * r.imm.pos(STRAIGHT));
         assert!(r.hybrid.pos(TURN) <= 1.05 * r.imm.pos(TURN));
         assert!(r.hybrid.pos(TURN) < r.cv_plain.pos(TURN));
         assert!(r.mean_delay() <= 2.0 && r.false_per_100() <= 1.0);

@@ -39,9 +39,10 @@ fn what_an_aircraft_holds_stays_within_its_budget() {
     // line's sums and where it starts), 64 since its learner centres the velocity innovation
     // on its running mean (`track::noise::InnovationMean`, 32) and each innovation summary its
     // IMM keeps for the plain `imm`'s learner carries the innovation's two horizontal
-    // components (`track::noise::BlockStat`, 2 × 16).
+    // components (`track::noise::BlockStat`, 2 × 16), 8 since its gate notes the newest
+    // barometric altitude (`track::gate`: the altitude-confirmed climb onset).
     assert!(
-        size_of::<HybridTracker>() <= 2344,
+        size_of::<HybridTracker>() <= 2352,
         "{}",
         size_of::<HybridTracker>()
     );
@@ -55,8 +56,9 @@ fn what_an_aircraft_holds_stays_within_its_budget() {
         "{}",
         size_of::<adsb_tracker::track::lag::VelocityLag>()
     );
-    // 72 bytes more since it holds an acceleration by its own line (the sums since it fired).
-    assert!(size_of::<Gate>() <= 328, "{}", size_of::<Gate>());
+    // 72 bytes more since it holds an acceleration by its own line (the sums since it fired),
+    // 8 since it notes the newest barometric altitude (the altitude-confirmed climb onset).
+    assert!(size_of::<Gate>() <= 336, "{}", size_of::<Gate>());
     // 56 bytes more since a pending velocity report carries its grid.
     assert!(size_of::<CvKalman>() <= 816, "{}", size_of::<CvKalman>());
     // What the router queues per message between two batches (`decode::Heard`): a busy

@@ -76,6 +76,8 @@ pub struct GateConfig {
     pub vertical_rate_mps: Option<f64>,
     /// 0 disables the climb or descent onset test.
     pub vertical_onset_sigmas: Option<f64>,
+    /// 0 disables the altitude-confirmed climb or descent onset.
+    pub vertical_onset_altitude_sigmas: Option<f64>,
     pub vertical_window_reports: Option<usize>,
     pub max_window_s: Option<f64>,
     pub significance_sigmas: Option<f64>,
@@ -374,6 +376,10 @@ impl GateConfig {
         if let Some(v) = self.vertical_onset_sigmas {
             let v = check(&k("vertical_onset_sigmas"), v, 0.0, false, 100.0)?;
             p.vertical_onset_sigmas = (v > 0.0).then_some(v);
+        }
+        if let Some(v) = self.vertical_onset_altitude_sigmas {
+            let v = check(&k("vertical_onset_altitude_sigmas"), v, 0.0, false, 100.0)?;
+            p.vertical_onset_altitude_sigmas = (v > 0.0).then_some(v);
         }
         if let Some(v) = self.trend_window_reports {
             p.trend_window_reports = count(&k("trend_window_reports"), v, 3, cap)?;
@@ -841,6 +847,18 @@ mod tests {
         );
         assert_eq!(onset("[tracker.gate]\nvertical_onset_sigmas = 0\n"), None);
         assert_eq!(onset("[tracker.gate]\npreset = \"paper002\"\n"), None);
+        // Its altitude-confirmed form: on by default at 3σ, or 0 for off.
+        let confirmed = |toml: &str| gate_of(toml).vertical_onset_altitude_sigmas;
+        assert_eq!(confirmed(""), Some(3.0));
+        assert_eq!(
+            confirmed("[tracker.gate]\nvertical_onset_altitude_sigmas = 3.5\n"),
+            Some(3.5)
+        );
+        assert_eq!(
+            confirmed("[tracker.gate]\nvertical_onset_altitude_sigmas = 0\n"),
+            None
+        );
+        assert_eq!(confirmed("[tracker.gate]\npreset = \"paper002\"\n"), None);
     }
 
     #[test]
@@ -861,6 +879,10 @@ mod tests {
             (
                 "[tracker.gate]\naccel_hold_sigmas = -1.0\n",
                 "tracker.gate.accel_hold_sigmas",
+            ),
+            (
+                "[tracker.gate]\nvertical_onset_altitude_sigmas = -1.0\n",
+                "tracker.gate.vertical_onset_altitude_sigmas",
             ),
             (
                 "[tracker.gate]\nvertical_onset_sigmas = -1.0\n",

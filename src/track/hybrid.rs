@@ -42,7 +42,7 @@ use super::kalman::{self, MotionModel};
 use super::lag::VelocityLag;
 use super::models::{Cv, Matrix6, Matrix9, Model, State6, State9, ACC};
 use super::nis::NisWindow;
-use super::noise::{local_up, NoiseLearner, NoiseParams};
+use super::noise::{height_m, local_up, NoiseLearner, NoiseParams};
 use super::outlier::{OutlierGate, OutlierParams};
 use super::process_noise::{Narrow, SteadyQ, SteadyQParams};
 use super::tails::{TailIndex, TailParams};
@@ -610,6 +610,13 @@ impl HybridTracker {
             Branch::Imm { .. } => kalman::rows::<6, _>(&self.imm.combined_state(), 0),
         };
         let pos = kalman::rows::<3, _>(&x, 0);
+        if let Some(p) = m
+            .position
+            .as_ref()
+            .filter(|p| p.cov[(2, 2)] < 0.5 * super::UNMEASURED_VARIANCE)
+        {
+            self.gate.altitude(height_m(&p.value));
+        }
         if let Some(v) = &m.velocity {
             self.gate.push(m.t_s, &to_local_axes(&pos, v), true);
             self.last_velocity_t_s = Some(m.t_s);

@@ -80,6 +80,15 @@ pub fn local_up(pos_m: &Vector3<f64>) -> Vector3<f64> {
     }
 }
 
+/// The height above the spherical Earth of [`local_up`] of `pos_m` (a position in a
+/// track's tangent frame), m: the altitude the frame's up coordinate falls below as the
+/// aircraft moves from the frame's origin (125 m at 40 km), for tests of the altitude's
+/// change. The sphere's height differs from the ellipsoid's by a constant over a track's
+/// few seconds.
+pub fn height_m(pos_m: &Vector3<f64>) -> f64 {
+    (pos_m + Vector3::z() * EARTH_RADIUS_M).norm() - EARTH_RADIUS_M
+}
+
 /// Tuning of the learner.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct NoiseParams {

@@ -85,7 +85,7 @@ impl SimSummary {
 }
 
 /// The built-in scenarios: name and TOML text (fixtures/scenarios/NAME.toml, embedded).
-pub const BUILTIN: [(&str, &str); 16] = [
+pub const BUILTIN: [(&str, &str); 17] = [
     (
         "paper000",
         include_str!("../../fixtures/scenarios/paper000.toml"),
@@ -117,6 +117,10 @@ pub const BUILTIN: [(&str, &str); 16] = [
     (
         "approach",
         include_str!("../../fixtures/scenarios/approach.toml"),
+    ),
+    (
+        "approach-baro",
+        include_str!("../../fixtures/scenarios/approach-baro.toml"),
     ),
     (
         "airliner-nacp10",
@@ -210,7 +214,7 @@ mod tests {
             e,
             "no scenario file \"nope\" and no built-in scenario of that name \
              (built-in: paper000, paper000-positions, paper001, paper002, paper002-positions, \
-             paper003, departure, approach, airliner-nacp10, airliner-gnss-velocity, airliner-stale, airliner-timing, turns-undeclared, turns-correlated, fleet, fleet-uniform)"
+             paper003, departure, approach, approach-baro, airliner-nacp10, airliner-gnss-velocity, airliner-stale, airliner-timing, turns-undeclared, turns-correlated, fleet, fleet-uniform)"
         );
     }
 

@@ -105,6 +105,15 @@ pub struct Settings {
     /// (GNSS errors wander over tens of seconds to minutes). 0.1..=100,000.
     #[serde(default = "default_gnss_bias_tau_s")]
     pub gnss_bias_tau_s: f64,
+    /// Barometric altitude error: the stationary σ of a first-order Gauss–Markov process
+    /// added to the reported altitude before its 25-ft rounding, m (0 = none, the default:
+    /// the altitude is the truth, rounded). An autopilot holds its altitude to a few feet,
+    /// and one held at a step's edge makes the report flicker between two steps. 0..=1,000.
+    #[serde(default)]
+    pub baro_alt_error_sigma_m: f64,
+    /// Its time constant τ, s. Default 10 s. 0.1..=100,000.
+    #[serde(default = "default_baro_alt_error_tau_s")]
+    pub baro_alt_error_tau_s: f64,
     /// Position/velocity validity offset, s: the position a frame carries is the truth this
     /// long before the frame is sent (a transponder's position latency; velocity reports
     /// are current). Default 0. -2..=2.
@@ -147,6 +156,10 @@ fn default_stale_position_age_s() -> f64 {
 
 fn default_gnss_bias_tau_s() -> f64 {
     60.0
+}
+
+fn default_baro_alt_error_tau_s() -> f64 {
+    10.0
 }
 
 fn default_report_period_s() -> f64 {
@@ -475,6 +488,18 @@ impl Scenario {
             100_000.0,
         )?;
         check_range(
+            "settings.baro_alt_error_sigma_m",
+            s.baro_alt_error_sigma_m,
+            0.0,
+            1_000.0,
+        )?;
+        check_range(
+            "settings.baro_alt_error_tau_s",
+            s.baro_alt_error_tau_s,
+            0.1,
+            100_000.0,
+        )?;
+        check_range(
             "settings.position_validity_offset_s",
             s.position_validity_offset_s,
             -2.0,
@@ -771,6 +796,8 @@ pub fn fleet(spec: &FleetSpec) -> Result<Scenario, SimError> {
             velocity_noise_sigma_mps: None,
             gnss_bias_sigma_m: 0.0,
             gnss_bias_tau_s: default_gnss_bias_tau_s(),
+            baro_alt_error_sigma_m: 0.0,
+            baro_alt_error_tau_s: default_baro_alt_error_tau_s(),
             position_validity_offset_s: 0.0,
             velocity_validity_offset_s: 0.0,
             position_validity_jitter_s: 0.0,

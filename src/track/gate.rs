@@ -2342,17 +2342,48 @@ mod tests {
     /// its label, and the gate's learned σ.
     fn vertical_timing(
         params: GateParams,
+        noise_sigmas: (f64, f64),
+        climb_mps: f64,
+        seed: u64,
+    ) -> (f64, Option<usize>, Option<f64>) {
+        vertical_run(params, noise_sigmas, climb_mps, None, seed)
+    }
+
+    /// `vertical_timing`, and with `altitude` = (edge, σ) a barometric altitude before each
+    /// velocity report, as position reports interleave with velocities (a quarter of a
+    /// second before each): the truth's height (level, `edge` = 0 at the middle of a 25-ft
+    /// step and 0.5 at its edge, then the climb from t = 100 s) plus white error of σ, in
+    /// 25-ft steps. Level at an edge with white error is the worst case for the altitude's
+    /// confirmation: the altitude flickers between two steps on about half the reports,
+    /// which real level flight does far less often.
+    fn vertical_run(
+        params: GateParams,
         (sigma_u, declared_sigma_u): (f64, f64),
         climb_mps: f64,
+        altitude: Option<(f64, f64)>,
         seed: u64,
     ) -> (f64, Option<usize>, Option<f64>) {
         let mut rng = StdRng::seed_from_u64(seed);
         let noise = Normal::new(0.0, sigma_u).unwrap();
+        let step_m = 25.0 * 0.3048;
         let mut gate = Gate::new(params);
         let cov = Matrix3::from_diagonal(&Vector3::new(1.5, 1.5, declared_sigma_u.powi(2)));
+        let direction = if climb_mps > 0.0 {
+            VerticalTrend::Climb
+        } else {
+            VerticalTrend::Descent
+        };
         let (mut fired, mut level, mut onset) = (0, 0, None);
         for k in 0..300 {
             let t = 0.5 * k as f64;
+            if let Some((edge, baro_sigma_m)) = altitude {
+                let t_alt = t - 0.25;
+                let h = (3000.0 + edge) * step_m + climb_mps * (t_alt - 100.0).max(0.0);
+                let error_m = Normal::new(0.0, baro_sigma_m.max(1e-9))
+                    .unwrap()
+                    .sample(&mut rng);
+                gate.altitude(((h + error_m) / step_m).round() * step_m);
+            }
             let vu = if t >= 100.0 { climb_mps } else { 0.0 };
             let vu = ((vu + noise.sample(&mut rng)) / VRATE_LSB_MPS).round() * VRATE_LSB_MPS;
             let value = Vector3::new(88.0, 66.0, vu);
@@ -2368,7 +2399,7 @@ mod tests {
             if (10.0..100.0).contains(&t) {
                 level += 1;
                 fired += usize::from(r.flags.vertical);
-            } else if t >= 100.0 && onset.is_none() && r.vertical() == VerticalTrend::Climb {
+            } else if t >= 100.0 && onset.is_none() && r.vertical() == direction {
                 onset = Some(k - 200);
             }
         }
@@ -2460,53 +2491,6 @@ mod tests {
         assert!(false_with < 0.0025, "{false_with}");
     }
 
-    /// `vertical_timing` with a barometric altitude before each velocity report, as
-    /// position reports interleave with velocities (a quarter of a second before each):
-    /// the truth's height (level, `edge` = 0 at the middle of a 25-ft step and 0.5 at its
-    /// edge, then the climb from t = 100 s) plus white error of σ `baro_sigma_m`, in 25-ft
-    /// steps. Level at an edge with white error is the worst case for the altitude's
-    /// confirmation: the altitude flickers between two steps on about half the reports,
-    /// which real level flight does far less often.
-    fn vertical_timing_with_altitude(
-        params: GateParams,
-        climb_mps: f64,
-        (edge, baro_sigma_m): (f64, f64),
-        seed: u64,
-    ) -> (f64, Option<usize>) {
-        let mut rng = StdRng::seed_from_u64(seed);
-        let vnoise = Normal::new(0.0, 2.33).unwrap();
-        let baro = Normal::new(0.0, baro_sigma_m.max(1e-9)).unwrap();
-        let step_m = 25.0 * 0.3048;
-        let mut gate = Gate::new(params);
-        let cov = Matrix3::from_diagonal(&Vector3::new(1.5, 1.5, 2.33f64.powi(2)));
-        let (mut fired, mut level, mut onset) = (0, 0, None);
-        for k in 0..300 {
-            let t = 0.5 * k as f64;
-            let t_alt = t - 0.25;
-            let h = (3000.0 + edge) * step_m + climb_mps * (t_alt - 100.0).max(0.0);
-            gate.altitude(((h + baro.sample(&mut rng)) / step_m).round() * step_m);
-            let vu = if t >= 100.0 { climb_mps } else { 0.0 };
-            let vu = ((vu + vnoise.sample(&mut rng)) / VRATE_LSB_MPS).round() * VRATE_LSB_MPS;
-            let value = Vector3::new(88.0, 66.0, vu);
-            let r = *gate.push(
-                t,
-                &Observed {
-                    value,
-                    cov,
-                    grid: None,
-                },
-                true,
-            );
-            if (10.0..100.0).contains(&t) {
-                level += 1;
-                fired += usize::from(r.flags.vertical);
-            } else if t >= 100.0 && onset.is_none() && r.vertical() != VerticalTrend::Level {
-                onset = Some(k - 200);
-            }
-        }
-        (fired as f64 / level as f64, onset)
-    }
-
     /// A climb changes the height; chance rates do not. The newest reports' mean at 3σ,
     /// taken when the altitude has left its level by a step, labels a 7 m/s climb or
     /// descent at the simulator's NACv 2 noise (σ 2.33 m/s) sooner than the 4.5σ test
@@ -2531,7 +2515,8 @@ mod tests {
                 } else {
                     edge
                 };
-                let (f, o) = vertical_timing_with_altitude(params, climb, (edge, sigma), seed);
+                let (f, o, _) =
+                    vertical_run(params, (2.33, 2.33), climb, Some((edge, sigma)), seed);
                 onset += o.unwrap() as f64 / runs as f64;
                 false_rate += f / runs as f64;
             }

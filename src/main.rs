@@ -71,7 +71,7 @@ enum Command {
     },
     /// Simulate a scenario: writes PREFIX.beast, PREFIX.avr and PREFIX.truth.csv.
     Simulate {
-        /// A built-in scenario name (paper000..paper003, departure, approach, airliner-nacp10, airliner-gnss-velocity, airliner-stale, airliner-timing, turns-undeclared, turns-correlated) or a TOML file.
+        /// A built-in scenario name (paper000..paper003, departure, approach, approach-baro, airliner-nacp10, airliner-gnss-velocity, airliner-stale, airliner-timing, turns-undeclared, turns-correlated) or a TOML file.
         scenario: String,
         #[arg(long)]
         out: PathBuf,

@@ -352,16 +352,11 @@ impl Emitter {
         if cfg.bias_sigma_m <= 0.0 {
             return (0.0, 0.0);
         }
-        let sigma = cfg.bias_sigma_m;
+        let (sigma, tau) = (cfg.bias_sigma_m, cfg.bias_tau_s);
         let mut draw = || -> f64 { self.bias_rng.sample::<f64, _>(StandardNormal) };
-        let (e, n) = match self.bias {
-            None => (draw() * sigma, draw() * sigma),
-            Some((e, n, t0)) => {
-                let phi = (-(t_s - t0).max(0.0) / cfg.bias_tau_s).exp();
-                let w = sigma * (1.0 - phi * phi).max(0.0).sqrt();
-                (phi * e + w * draw(), phi * n + w * draw())
-            }
-        };
+        let last = self.bias.map(|(e, n, t0)| ((e, n), t_s - t0));
+        let e = gauss_markov_step(last.map(|((e, _), dt)| (e, dt)), sigma, tau, draw());
+        let n = gauss_markov_step(last.map(|((_, n), dt)| (n, dt)), sigma, tau, draw());
         self.bias = Some((e, n, t_s));
         (e, n)
     }
@@ -373,15 +368,9 @@ impl Emitter {
         if cfg.baro_sigma_m <= 0.0 {
             return 0.0;
         }
-        let sigma = cfg.baro_sigma_m;
         let w: f64 = self.baro_rng.sample(StandardNormal);
-        let err = match self.baro {
-            None => w * sigma,
-            Some((err, t0)) => {
-                let phi = (-(t_s - t0).max(0.0) / cfg.baro_tau_s).exp();
-                phi * err + sigma * (1.0 - phi * phi).max(0.0).sqrt() * w
-            }
-        };
+        let last = self.baro.map(|(err, t0)| (err, t_s - t0));
+        let err = gauss_markov_step(last, cfg.baro_sigma_m, cfg.baro_tau_s, w);
         self.baro = Some((err, t_s));
         err
     }
@@ -457,6 +446,19 @@ impl Emitter {
             self.last_truth_tick = Some(tick);
         }
         Ok(())
+    }
+}
+
+/// One exact step of a first-order Gauss–Markov process of stationary σ `sigma` and time
+/// constant `tau_s` driven by the standard normal draw `w`: from its stationary law when
+/// there is no `last` (value, seconds since), else x ← e^(−Δ/τ) x + σ √(1 − e^(−2Δ/τ)) w.
+fn gauss_markov_step(last: Option<(f64, f64)>, sigma: f64, tau_s: f64, w: f64) -> f64 {
+    match last {
+        None => w * sigma,
+        Some((x, dt_s)) => {
+            let phi = (-dt_s.max(0.0) / tau_s).exp();
+            phi * x + sigma * (1.0 - phi * phi).max(0.0).sqrt() * w
+        }
     }
 }
 

@@ -28,6 +28,7 @@
 
 use super::alt::{self, scatter, Lifecycle, Step};
 use super::kalman::{self, Innovation};
+use super::nis::{self, NisWindow};
 use super::singer;
 use super::{Estimate, FlightMode, Measurement, Observed, TrackError, Tracker};
 use nalgebra::{Cholesky, Matrix2, SMatrix, SVector, Vector2};
@@ -130,6 +131,8 @@ pub struct JerkTracker {
     history_next: usize,
     history_filled: usize,
     activations: u64,
+    /// The windowed NIS of the track's reports ([`super::nis`]).
+    nis: NisWindow,
 }
 
 impl Default for JerkTracker {
@@ -150,6 +153,7 @@ impl JerkTracker {
             history_next: 0,
             history_filled: 0,
             activations: 0,
+            nis: NisWindow::default(),
         }
     }
 
@@ -312,7 +316,7 @@ impl JerkTracker {
             lateral: super::Lateral::Straight,
             speed: super::SpeedTrend::Constant,
             vertical: super::VerticalTrend::Level,
-            nis: None,
+            nis: self.nis.stat(),
         }
     }
 }
@@ -346,6 +350,7 @@ impl Tracker for JerkTracker {
             }
             Step::Initiate { position, velocity } => {
                 self.initiate(m.t_s, &position, velocity);
+                self.nis.clear();
                 return Ok(());
             }
             Step::Update { dt_s } => match self.track {
@@ -357,6 +362,7 @@ impl Tracker for JerkTracker {
         let (mut x, mut p) = (track.x, track.p);
         kalman::predict(&mut x, &mut p, &f, &q);
         x += u;
+        let dof = nis::horizontal_dof(m.position.as_ref(), m.velocity.as_ref());
         let position_innovation = match (&m.position, &m.velocity) {
             (Some(pos), Some(vel)) => {
                 let mut z = SVector::<f64, 6>::zeros();
@@ -368,17 +374,20 @@ impl Tracker for JerkTracker {
                 let mut r = SMatrix::<f64, 6, 6>::zeros();
                 r.fixed_view_mut::<3, 3>(0, 0).copy_from(&pos.cov);
                 r.fixed_view_mut::<3, 3>(3, 3).copy_from(&vel.cov);
-                Some(horizontal(&kalman::update(&mut x, &mut p, &z, &h, &r)?))
+                let inn = kalman::update(&mut x, &mut p, &z, &h, &r)?;
+                self.nis.push(nis::horizontal(&inn, &r), dof);
+                Some(horizontal(&inn))
             }
-            (Some(pos), None) => Some(horizontal(&kalman::update(
-                &mut x,
-                &mut p,
-                &pos.value,
-                &alt::pick::<10>(POS),
-                &pos.cov,
-            )?)),
+            (Some(pos), None) => {
+                let inn =
+                    kalman::update(&mut x, &mut p, &pos.value, &alt::pick::<10>(POS), &pos.cov)?;
+                self.nis.push(nis::horizontal(&inn, &pos.cov), dof);
+                Some(horizontal(&inn))
+            }
             (None, Some(vel)) => {
-                kalman::update(&mut x, &mut p, &vel.value, &alt::pick::<10>(VEL), &vel.cov)?;
+                let inn =
+                    kalman::update(&mut x, &mut p, &vel.value, &alt::pick::<10>(VEL), &vel.cov)?;
+                self.nis.push(nis::horizontal(&inn, &vel.cov), dof);
                 None
             }
             (None, None) => None,
@@ -479,6 +488,23 @@ mod tests {
                 assert!(Cholesky::new(p).is_some(), "{variant:?} step {step}");
             });
             assert_eq!(kf.reinitialisations(), 0);
+        }
+    }
+
+    #[test]
+    fn the_windowed_nis_is_published_and_follows_the_claim() {
+        for variant in [
+            JerkVariant::Jerk,
+            JerkVariant::CsJerkPlain,
+            JerkVariant::CsJerkImproved,
+        ] {
+            let per_dof = crate::track::singer::tests::windowed_nis_by_claim(|| {
+                Box::new(JerkTracker::new(JerkParams {
+                    variant,
+                    ..JerkParams::default()
+                }))
+            });
+            crate::track::singer::tests::assert_the_claim_shows(&format!("{variant:?}"), per_dof);
         }
     }
 

@@ -38,6 +38,7 @@
 use super::alt::{Lifecycle, Step};
 use super::cubature::{self, Fit, Matrix6, Vector6};
 use super::kalman;
+use super::nis::{self, NisWindow};
 use super::singer;
 use super::{Estimate, FlightMode, Measurement, Observed, TrackError, Tracker};
 use nalgebra::{Cholesky, Matrix2, SMatrix, SVector, Vector2};
@@ -291,6 +292,9 @@ struct Track {
     active: [bool; MODELS],
     /// NIS of each model at the last position update.
     nis: [f64; MODELS],
+    /// The most probable model's NIS over the last report's horizontal components: the
+    /// track's term of its windowed NIS (NaN before an update).
+    term: f64,
     /// Fused horizontal state and factor.
     fused_x: Vector6,
     fused_s: Matrix6,
@@ -307,6 +311,8 @@ pub struct Vsimm {
     track: Option<Track>,
     /// Sum over updates of the number of active models (VSIMM cost measure).
     model_steps: u64,
+    /// The windowed NIS of the track's reports ([`super::nis`]).
+    nis: NisWindow,
 }
 
 impl Default for Vsimm {
@@ -352,6 +358,7 @@ impl Vsimm {
             life: Lifecycle::new(params.max_gap_s, params.init_velocity_max_age_s),
             track: None,
             model_steps: 0,
+            nis: NisWindow::default(),
         }
     }
 
@@ -434,6 +441,7 @@ impl Vsimm {
             mu,
             active,
             nis: [0.0; MODELS],
+            term: f64::NAN,
             fused_x: x,
             fused_s: s,
             xv,
@@ -522,7 +530,7 @@ impl Vsimm {
             lateral: super::Lateral::Straight,
             speed: super::SpeedTrend::Constant,
             vertical: super::VerticalTrend::Level,
-            nis: None,
+            nis: self.nis.stat(),
         }
     }
 
@@ -563,6 +571,7 @@ impl Vsimm {
         next.t_s = m.t_s;
         next.active = active;
         let mut log_post = [f64::NEG_INFINITY; MODELS];
+        let mut fit_nis = [f64::NAN; MODELS];
         let h_pos = {
             let mut h = SMatrix::<f64, 2, 6>::zeros();
             h[(0, X)] = 1.0;
@@ -660,6 +669,7 @@ impl Vsimm {
             }
             next.x[s] = x;
             next.nis[s] = nis_pos;
+            fit_nis[s] = fit.map_or(f64::NAN, |f| f.nis);
             log_post[s] = c[s].ln() + fit.map_or(0.0, |f| f.log_likelihood);
         }
         self.model_steps = self.model_steps.saturating_add(n_on as u64);
@@ -675,6 +685,8 @@ impl Vsimm {
                 0.0
             };
         }
+        let best = (0..MODELS).fold(0, |b, s| if next.mu[s] > next.mu[b] { s } else { b });
+        next.term = fit_nis.get(best).copied().unwrap_or(f64::NAN);
         // Fusion (eq. 10–11).
         let mut fused = Vector6::zeros();
         for s in 0..MODELS {
@@ -746,6 +758,7 @@ impl Tracker for Vsimm {
             }
             Step::Initiate { position, velocity } => {
                 self.initiate(m.t_s, &position, velocity);
+                self.nis.clear();
                 return Ok(());
             }
             Step::Update { dt_s } => match self.track {
@@ -754,6 +767,10 @@ impl Tracker for Vsimm {
             },
         };
         let mut next = self.cycle(&track, dt_s, m)?;
+        self.nis.push(
+            next.term,
+            nis::horizontal_dof(m.position.as_ref(), m.velocity.as_ref()),
+        );
         vertical_predict(&mut next.xv, &mut next.pv, self.params.q_v_m2ps3, dt_s);
         let mut h1 = SMatrix::<f64, 1, 2>::zeros();
         h1[(0, 0)] = 1.0;
@@ -880,6 +897,19 @@ mod tests {
                 let p = kf.fused_factor().unwrap();
                 assert!(p.iter().all(|v| v.is_finite()));
             });
+        }
+    }
+
+    #[test]
+    fn the_windowed_nis_is_published_and_follows_the_claim() {
+        for variant in [Variant::VsimmSrckf, Variant::ImmCkf, Variant::ImmSrckf] {
+            let per_dof = crate::track::singer::tests::windowed_nis_by_claim(|| {
+                Box::new(Vsimm::new(VsimmParams {
+                    variant,
+                    ..VsimmParams::default()
+                }))
+            });
+            crate::track::singer::tests::assert_the_claim_shows(&format!("{variant:?}"), per_dof);
         }
     }
 

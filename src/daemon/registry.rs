@@ -124,8 +124,8 @@ pub struct TrackState {
     #[schema(value_type = Vec<Vec<f64>>)]
     pub vel_cov_enu_m2ps2: [[f64; 3]; 3],
     /// Windowed normalised innovation squared: the sum of the last updates' NIS over their
-    /// measured horizontal components, east and north of position and velocity (null when
-    /// the tracker keeps none). χ²(`nis_dof`) for a consistent filter (`track::nis`; the
+    /// measured horizontal components, east and north of position and velocity (null before
+    /// the track's first update; every tracker keeps one). χ²(`nis_dof`) for a consistent filter (`track::nis`; the
     /// quantised barometric altitude and rate are left out; a ground velocity's 1-kt
     /// rounding is read through its bin, `track::quantised`; `hybrid` and `imm` read a
     /// position in steady flight under the aircraft's learned tail index, `track::tails`).

@@ -327,7 +327,7 @@ pub struct Estimate {
     /// Vertical movement (I062/200 VERT).
     pub vertical: VerticalTrend,
     /// The windowed normalised innovation squared ([`nis`]); `None` before the first
-    /// update or for a tracker that does not keep one.
+    /// update (every tracker keeps one).
     pub nis: Option<nis::NisStat>,
 }
 

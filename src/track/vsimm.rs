@@ -292,9 +292,6 @@ struct Track {
     active: [bool; MODELS],
     /// NIS of each model at the last position update.
     nis: [f64; MODELS],
-    /// The most probable model's NIS over the last report's horizontal components: the
-    /// track's term of its windowed NIS (NaN before an update).
-    term: f64,
     /// Fused horizontal state and factor.
     fused_x: Vector6,
     fused_s: Matrix6,
@@ -441,7 +438,6 @@ impl Vsimm {
             mu,
             active,
             nis: [0.0; MODELS],
-            term: f64::NAN,
             fused_x: x,
             fused_s: s,
             xv,
@@ -454,9 +450,7 @@ impl Vsimm {
         if self.params.variant != Variant::VsimmSrckf {
             return [true; MODELS];
         }
-        let best = (0..MODELS)
-            .max_by(|&a, &b| tr.mu[a].total_cmp(&tr.mu[b]))
-            .unwrap_or(0);
+        let best = most_probable(&tr.mu);
         if tr.nis[best] > self.params.manoeuvre_nis {
             return [true; MODELS];
         }
@@ -500,9 +494,7 @@ impl Vsimm {
         }
         pos_cov[(2, 2)] = pv[(0, 0)];
         vel_cov[(2, 2)] = pv[(1, 1)];
-        let best = (0..MODELS)
-            .max_by(|&a, &b| mu[a].total_cmp(&mu[b]))
-            .unwrap_or(0);
+        let best = most_probable(mu);
         let mut probs = [0.0; 5];
         for (m, w) in Model::ALL.iter().zip(mu.iter()) {
             let idx = FlightMode::ALL
@@ -534,8 +526,15 @@ impl Vsimm {
         }
     }
 
-    /// One IMM cycle over the horizontal state; returns the new track.
-    fn cycle(&mut self, tr: &Track, dt_s: f64, m: &Measurement) -> Result<Track, TrackError> {
+    /// One IMM cycle over the horizontal state; returns the new track and the most probable
+    /// model's NIS of the report over its horizontal components (the track's term of its
+    /// windowed NIS).
+    fn cycle(
+        &mut self,
+        tr: &Track,
+        dt_s: f64,
+        m: &Measurement,
+    ) -> Result<(Track, f64), TrackError> {
         let sr = self.square_root();
         let active = self.next_active(tr);
         let n_on = active.iter().filter(|a| **a).count();
@@ -685,8 +684,10 @@ impl Vsimm {
                 0.0
             };
         }
-        let best = (0..MODELS).fold(0, |b, s| if next.mu[s] > next.mu[b] { s } else { b });
-        next.term = fit_nis.get(best).copied().unwrap_or(f64::NAN);
+        let term = fit_nis
+            .get(most_probable(&next.mu))
+            .copied()
+            .unwrap_or(f64::NAN);
         // Fusion (eq. 10–11).
         let mut fused = Vector6::zeros();
         for s in 0..MODELS {
@@ -702,8 +703,15 @@ impl Vsimm {
                 .ok_or(TrackError::NotPositiveDefinite)?
                 .l()
         };
-        Ok(next)
+        Ok((next, term))
     }
+}
+
+/// The index of the largest of the model probabilities `mu` (the last of equals).
+fn most_probable(mu: &[f64; MODELS]) -> usize {
+    (0..MODELS)
+        .max_by(|&a, &b| mu[a].total_cmp(&mu[b]))
+        .unwrap_or(0)
 }
 
 /// Horizontal position and velocity as one 4-D measurement.
@@ -766,9 +774,9 @@ impl Tracker for Vsimm {
                 None => return Ok(()),
             },
         };
-        let mut next = self.cycle(&track, dt_s, m)?;
+        let (mut next, term) = self.cycle(&track, dt_s, m)?;
         self.nis.push(
-            next.term,
+            term,
             nis::horizontal_dof(m.position.as_ref(), m.velocity.as_ref()),
         );
         vertical_predict(&mut next.xv, &mut next.pv, self.params.q_v_m2ps3, dt_s);
